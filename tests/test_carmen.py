@@ -1,0 +1,106 @@
+"""The CARMEN log reader on the shared real logs and on a file with malformed lines."""
+
+from __future__ import annotations
+
+import gzip
+import logging
+import math
+
+import numpy as np
+import pytest
+
+from mapper.types import Odometry, Scan
+from service.carmen import CarmenReader, LaserRecord, OdomRecord, ParamRecord, flaser_geometry, mapper_inputs
+
+
+@pytest.mark.parametrize(
+    ("name", "kind", "count"),
+    [
+        ("intel-raw-first5505.clf.gz", "FLASER", 5505),
+        ("mit-csail.clf.gz", "FLASER", 1988),
+        ("csail-robotlaser1.log.gz", "ROBOTLASER1", 686),
+        ("intel-corrected.log.gz", "FLASER", 910),
+        ("csail-corrected.log.gz", "FLASER", 406),
+        ("aces-corrected.log.gz", "FLASER", 440),
+    ],
+)
+def test_laser_counts_match_sources_md(shared_data, name, kind, count):
+    reader = CarmenReader(shared_data / name)
+    lasers = [r for r in reader if isinstance(r, LaserRecord)]
+    assert len(lasers) == count
+    assert reader.counters[kind] == count
+    assert reader.counters["malformed"] == 0
+
+
+def test_intel_raw_flaser_geometry_and_pose(shared_data):
+    first = next(r for r in CarmenReader(shared_data / "intel-raw-first5505.clf.gz"))
+    assert first.kind == "FLASER" and len(first.ranges) == 180 and first.ranges.dtype == np.float32
+    assert first.t == pytest.approx(0.000246)
+    assert first.angle_min == pytest.approx(-math.pi / 2)
+    # n = 180: the last beam still sits at +90 degrees
+    assert first.angle_min + 179 * first.angle_increment == pytest.approx(math.pi / 2)
+    assert first.pose == first.odom_pose == pytest.approx((0.0, 0.0, -0.002458))
+
+
+def test_flaser_beam_spacing():
+    assert flaser_geometry(181)[1] == pytest.approx(math.radians(1.0))
+    assert flaser_geometry(361)[1] == pytest.approx(math.radians(0.5))
+
+
+def test_csail_robotlaser1_fields(shared_data):
+    reader = CarmenReader(shared_data / "csail-robotlaser1.log.gz")
+    r = next(iter(reader))
+    assert r.kind == "ROBOTLASER1" and len(r.ranges) == 361
+    assert r.angle_min == pytest.approx(-1.570796) and r.angle_increment == pytest.approx(0.008727)
+    assert r.t == pytest.approx(1134864642.914187)
+    assert r.laser_pose is not None and r.odom_pose is None
+    # ranges of 81.91 m are no-return: at or beyond max_range
+    assert r.ranges.max() >= r.max_range
+
+
+def test_odom_and_param_records(shared_data):
+    recs = list(CarmenReader(shared_data / "intel-corrected.log.gz"))
+    assert sum(isinstance(r, ParamRecord) for r in recs) == 2
+    assert sum(isinstance(r, OdomRecord) for r in recs) == 14541
+    p = next(r for r in recs if isinstance(r, ParamRecord))
+    assert p.name == "robot_frontlaser_offset" and p.value == "0.0"
+
+
+def test_malformed_lines_are_reported_with_file_and_line_then_skipped(tmp_path, caplog):
+    good = "FLASER 3 1.0 2.0 81.91 0.1 0.2 0.3 0.1 0.2 0.3 5.5 host 5.6"
+    lines = [
+        "# a comment",
+        good,
+        "FLASER 3 1.0 2.0 0.1 0.2 0.3 0.1 0.2 0.3 5.5 host 5.6",  # one reading short
+        "ODOM 1 2 x 0 0 0 6.0 host 6.0",  # not a number
+        "ODOM 1 2 3 0.5 0.1 0 6.5 host 6.5",
+        "NEFF 12",
+        "",
+        "PARAM",
+    ]
+    p = tmp_path / "bad.log.gz"
+    with gzip.open(p, "wt") as fh:
+        fh.write("\n".join(lines) + "\n")
+    reader = CarmenReader(p)
+    with caplog.at_level(logging.WARNING, logger="service.carmen"):
+        recs = list(reader)
+    assert [type(r).__name__ for r in recs] == ["LaserRecord", "OdomRecord"]
+    assert reader.counters["malformed"] == 3
+    assert reader.counters["comment"] == 1 and reader.counters["ignored"] == 1
+    msgs = [r.getMessage() for r in caplog.records]
+    assert len(msgs) == 3
+    assert f"{p}:3:" in msgs[0] and f"{p}:4:" in msgs[1] and f"{p}:8:" in msgs[2]
+    laser = recs[0]
+    assert laser.t == 5.5 and laser.line == 2
+    assert laser.angle_increment == pytest.approx(math.pi / 2)
+
+
+def test_mapper_inputs_pairs_odometry_with_each_scan(shared_data):
+    items = []
+    for i, item in enumerate(mapper_inputs(shared_data / "intel-raw-first5505.clf.gz")):
+        items.append(item)
+        if i >= 9:
+            break
+    assert [type(i) for i in items] == [Odometry, Scan] * 5
+    assert items[0].t == items[1].t
+    assert items[1].max_range == 50.0
