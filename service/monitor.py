@@ -1,0 +1,227 @@
+"""Watching robots over Zenoh: which are alive, their maps, live status and events.
+
+A :class:`Monitor` discovers robots by their liveliness tokens (``asrmap/<robot>/alive``), fetches
+each map from its ``map`` queryable when the robot appears, keeps it current from the ``asr/<id>``
+puts (and refetches it after events that change links or cycles), and turns everything into
+:class:`Update` items that the CLI prints. Zenoh callbacks only enqueue; :meth:`Monitor.poll`
+runs on the caller's thread.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import zenoh
+
+from service.bus import PREFIX, client_config, open_session
+
+log = logging.getLogger(__name__)
+
+# Events after which the links or cycles of the map may have changed: the map is fetched again.
+_REFETCH = {"exit_crossed", "cycle_detected", "cycle_rejected", "map_realigned"}
+
+
+@dataclass
+class Update:
+    """One thing that happened: ``kind`` is alive, gone, map, event, status, asr or pose."""
+
+    kind: str
+    robot: str
+    data: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class RobotView:
+    """What is known of one robot: its map document, latest status and pose, liveliness."""
+
+    name: str
+    alive: bool = False
+    doc: dict[str, Any] | None = None
+    status: dict[str, Any] | None = None
+    pose: dict[str, Any] | None = None
+    changed: bool = False
+
+
+class Monitor:
+    """Subscribes to ``asrmap/<robot>/...`` (``robot`` ``*`` for all) through ``connect``."""
+
+    def __init__(self, connect: list[str], robot: str = "*", *, session: zenoh.Session | None = None):
+        self.robot = robot
+        self._own = session is None
+        self.session = session or open_session(client_config(connect), f"connect {', '.join(connect)}")
+        self.robots: dict[str, RobotView] = {}
+        self._q: queue.Queue = queue.Queue(maxsize=10000)
+        self.dropped = 0
+        try:
+            base = f"{PREFIX}/{robot}"
+            self._decls = [
+                self.session.declare_subscriber(f"{base}/event", self._on_sample("event")),
+                self.session.declare_subscriber(f"{base}/status", self._on_sample("status")),
+                self.session.declare_subscriber(f"{base}/pose", self._on_sample("pose")),
+                self.session.declare_subscriber(f"{base}/asr/*", self._on_sample("asr")),
+                # Last, so that a robot seen alive is already subscribed to (declarations are in order).
+                self.session.liveliness().declare_subscriber(f"{base}/alive", self._on_alive, history=True),
+            ]
+        except BaseException:
+            self.close()
+            raise
+
+    # --- callbacks (zenoh threads): copy out and enqueue only --------------------------------------
+
+    def _put(self, item: tuple) -> None:
+        try:
+            self._q.put_nowait(item)
+        except queue.Full:
+            self.dropped += 1
+
+    def _on_alive(self, s: zenoh.Sample) -> None:
+        self._put(("alive" if s.kind == zenoh.SampleKind.PUT else "gone", str(s.key_expr), b""))
+
+    def _on_sample(self, kind: str):
+        def cb(s: zenoh.Sample) -> None:
+            self._put((kind, str(s.key_expr), s.payload.to_bytes()))
+
+        return cb
+
+    # --- the caller's thread -----------------------------------------------------------------------
+
+    def fetch_map(self, robot: str, timeout: float = 2.0) -> dict[str, Any] | None:
+        """The robot's map document from its queryable, or None when it does not answer."""
+        for r in self.session.get(f"{PREFIX}/{robot}/map", timeout=timeout):
+            if r.ok:
+                return json.loads(r.ok.payload.to_bytes())
+            log.warning("map query to %s failed: %s", robot, r.err.payload.to_string())
+        return None
+
+    def poll(self, timeout: float = 0.2) -> list[Update]:
+        """Updates that arrived within ``timeout`` seconds (at least one waited for, then all queued)."""
+        out: list[Update] = []
+        try:
+            item = self._q.get(timeout=timeout)
+        except queue.Empty:
+            return out
+        while True:
+            out.extend(self._handle(*item))
+            try:
+                item = self._q.get_nowait()
+            except queue.Empty:
+                return out
+
+    def _view(self, robot: str) -> RobotView:
+        if robot not in self.robots:
+            self.robots[robot] = RobotView(robot)
+        return self.robots[robot]
+
+    def _handle(self, kind: str, key: str, payload: bytes) -> list[Update]:
+        robot = key.split("/")[1]
+        view = self._view(robot)
+        if kind == "gone":
+            view.alive = False
+            return [Update("gone", robot)]
+        if kind == "alive":
+            view.alive = True
+            return [Update("alive", robot), *self._refresh(view)]
+        try:
+            data = json.loads(payload)
+        except ValueError:
+            log.warning("%s sent a %s that is not JSON", robot, kind)
+            return []
+        if kind == "status":
+            view.status = data
+        elif kind == "pose":
+            view.pose = data
+            view.changed = True
+            return []  # ~10 Hz: kept for pictures, not printed
+        elif kind == "asr":
+            if view.doc is not None:
+                data.pop("schema", None)
+                asrs = [a for a in view.doc["asrs"] if a["id"] != data["id"]]
+                view.doc["asrs"] = sorted([*asrs, data], key=lambda a: a["id"])
+                view.changed = True
+            return []  # printed as the events asr_created/asr_updated describe them
+        out = [Update(kind, robot, data)]
+        if kind == "event" and data.get("event") in _REFETCH:
+            out += self._refresh(view)
+        return out
+
+    def _refresh(self, view: RobotView) -> list[Update]:
+        doc = self.fetch_map(view.name)
+        if doc is None:
+            return []
+        view.doc, view.changed = doc, True
+        return [Update("map", view.name, doc)]
+
+    def close(self) -> None:
+        for d in getattr(self, "_decls", []):
+            try:
+                d.undeclare()
+            except zenoh.ZError:
+                pass
+        self._decls = []
+        if self._own:
+            self.session.close()
+
+    def __enter__(self) -> Monitor:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# --- one line per update ------------------------------------------------------------------------------
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.2f}"
+    if isinstance(v, list | tuple):
+        return "(" + ", ".join(_fmt(i) for i in v) + ")"
+    return str(v)
+
+
+def map_summary(doc: dict[str, Any]) -> str:
+    cycles = doc.get("cycles", [])
+    accepted = sum(1 for c in cycles if c.get("accepted"))
+    return (f"{len(doc.get('asrs', []))} ASRs, {len(doc.get('links', []))} links, "
+            f"{len(cycles)} cycles ({accepted} accepted)")
+
+
+def status_line(st: dict[str, Any]) -> str:
+    parts = []
+    for dev in ("pioneer", "laser"):
+        d = st.get(dev) or {}
+        parts.append(f"{dev}={d.get('link', '?')}")
+    rates = st.get("rates") or {}
+    parts += [f"{k}={_fmt(v)}/s" for k, v in rates.items()]
+    if st.get("battery") is not None:
+        parts.append(f"battery={_fmt(st['battery'])} V")
+    parts.append(f"dropped_scans={st.get('dropped_scans', 0)}")
+    if "asrs" in st:
+        parts.append(f"asrs={st['asrs']}")
+    return " ".join(parts)
+
+
+def format_update(u: Update) -> str:
+    """The terminal line for one update."""
+    if u.kind in ("alive", "gone"):
+        return f"{u.robot}  {u.kind}"
+    if u.kind == "map":
+        return f"{u.robot}  map: {map_summary(u.data)}"
+    if u.kind == "status":
+        return f"{u.robot}  status {status_line(u.data)}"
+    fields = " ".join(f"{k}={_fmt(v)}" for k, v in u.data.items() if k not in ("schema", "event"))
+    return f"{u.robot}  {u.data.get('event', u.kind)} {fields}"
+
+
+def discover(mon: Monitor, wait: float) -> list[Update]:
+    """Updates gathered for ``wait`` seconds (the robots alive now and their maps)."""
+    out: list[Update] = []
+    deadline = time.monotonic() + wait
+    while (left := deadline - time.monotonic()) > 0:
+        out += mon.poll(min(left, 0.1))
+    return out

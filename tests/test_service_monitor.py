@@ -1,0 +1,95 @@
+"""The monitor: robots by liveliness, their maps from the queryable, live events, in and out of process."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+from service.bus import Bus
+from service.config import ZenohConfig
+from service.monitor import Monitor, Update, format_update, status_line
+from tests.test_bus import DOC, free_port
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _until(mon: Monitor, pred, timeout: float = 5.0) -> list[Update]:
+    seen: list[Update] = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        seen += mon.poll(0.1)
+        if pred(seen):
+            return seen
+    raise AssertionError(f"not seen; got {[(u.kind, u.data) for u in seen]}")
+
+
+def _bus(ep: str, robot: str = "r1") -> Bus:
+    return Bus(robot, ZenohConfig(listen=(ep,)), lambda: DOC)
+
+
+def test_a_robot_appears_with_its_map_and_disappears():
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    with Monitor([ep]) as mon:
+        bus = _bus(ep)
+        seen = _until(mon, lambda s: any(u.kind == "map" for u in s))
+        assert [u.kind for u in seen[:2]] == ["alive", "map"] and seen[1].data["asrs"] == DOC["asrs"]
+        bus.close()
+        _until(mon, lambda s: any(u.kind == "gone" and u.robot == "r1" for u in s))
+        assert not mon.robots["r1"].alive
+
+
+def test_events_and_asr_updates_reach_the_view():
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    with _bus(ep) as bus, Monitor([ep], "r1") as mon:
+        _until(mon, lambda s: any(u.kind == "map" for u in s))
+        bus.publish_asr({**DOC["asrs"][0], "id": 4, "scans": 7})
+        bus.publish_event({"event": "asr_created", "t": 1.5, "asr": 4, "origin": [1.0, 2.0, 0.5]})
+        seen = _until(mon, lambda s: any(u.kind == "event" for u in s))
+        line = format_update(next(u for u in seen if u.kind == "event"))
+        assert line == "r1  asr_created t=1.50 asr=4 origin=(1.00, 2.00, 0.50)"
+        assert [a["id"] for a in mon.robots["r1"].doc["asrs"]] == [1, 2, 3, 4]
+
+
+def test_status_line_names_both_links_rates_battery_and_drops():
+    st = {"pioneer": {"link": "ok"}, "laser": {"link": "fault"}, "rates": {"scans": 9.96}, "battery": 12.4,
+          "dropped_scans": 3}
+    assert status_line(st) == "pioneer=ok laser=fault scans=9.96/s battery=12.40 V dropped_scans=3"
+
+
+def _cli(*args: str, **kw) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "service.cli", *args], cwd=ROOT, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kw)
+
+
+def test_monitor_once_in_another_process_lists_the_robot_and_its_map():
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    with _bus(ep, "robot7"):
+        out, err = _cli("monitor", "--once", "--connect", ep, "--wait", "1").communicate(timeout=20)
+    assert out.splitlines() == ["robot7  alive", "robot7  map: 3 ASRs, 0 links, 0 cycles (0 accepted)"], err
+
+
+def test_monitor_once_without_robots_exits_1():
+    p = _cli("monitor", "--once", "--connect", f"tcp/127.0.0.1:{free_port()}", "--wait", "0.3")
+    out, _ = p.communicate(timeout=20)
+    assert p.returncode == 1 and out == ""
+
+
+def test_live_monitor_prints_events_and_exits_0_on_sigterm():
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    with _bus(ep) as bus:
+        p = _cli("monitor", "--connect", ep)
+        try:
+            assert p.stdout.readline().startswith("watching asrmap/*/")
+            assert p.stdout.readline() == "r1  alive\n"
+            assert p.stdout.readline().startswith("r1  map: 3 ASRs")
+            deadline = time.monotonic() + 5
+            bus.publish_event({"event": "fault", "t": 2.0, "device": "laser", "reason": "no scan for 0.5 s"})
+            line = p.stdout.readline()
+            assert line == "r1  fault t=2.00 device=laser reason=no scan for 0.5 s\n"
+            assert time.monotonic() < deadline
+        finally:
+            p.send_signal(signal.SIGTERM)
+            assert p.wait(timeout=5) == 0
