@@ -18,6 +18,7 @@ import logging
 import os
 import sqlite3
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,14 @@ CREATE TABLE IF NOT EXISTS extra (key TEXT PRIMARY KEY, doc TEXT NOT NULL);
 
 def _dumps(v: Any) -> str:
     return json.dumps(v, separators=(",", ":"), allow_nan=False)
+
+
+@dataclass(frozen=True)
+class Synced:
+    """What one :meth:`MapStore.sync` wrote: ``rows`` in all, and the ids of the ASRs upserted."""
+
+    rows: int
+    asrs: list[int]
 
 
 class MapStore:
@@ -97,8 +106,8 @@ class MapStore:
         doc["cycles"] = [json.loads(v) for v in self._cycles]
         return doc
 
-    def sync(self, doc: dict[str, Any]) -> int:
-        """Commit what differs between ``doc`` and the store in one transaction; rows written.
+    def sync(self, doc: dict[str, Any]) -> Synced:
+        """Commit what differs between ``doc`` and the store in one transaction.
 
         ASRs are upserted by id; links by (``from``, ``exit``); cycles by position; ASRs or links
         no longer in ``doc`` are deleted (a document is the whole map).
@@ -117,7 +126,7 @@ class MapStore:
         n = sum(map(len, (up_asrs, del_asrs, up_links, del_links, up_cycles, up_extra, del_extra)))
         n += max(0, len(self._cycles) - len(cycles))
         if not n:
-            return 0
+            return Synced(0, [])
         db = self._db
         db.execute("BEGIN IMMEDIATE")
         try:
@@ -134,7 +143,7 @@ class MapStore:
             db.execute("ROLLBACK")
             raise
         self._asrs, self._links, self._cycles, self._extra = asrs, links, cycles, extra
-        return n
+        return Synced(n, [i for i, _ in up_asrs])
 
     def close(self) -> None:
         self._db.close()

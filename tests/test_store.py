@@ -10,7 +10,7 @@ import sys
 import textwrap
 import time
 
-from service.store import MapStore
+from service.store import MapStore, Synced
 
 
 def _asr(i: int, scans: int = 1, gen: int = 0) -> dict:
@@ -51,12 +51,12 @@ def test_the_file_is_in_wal_mode(tmp_path):
 def test_only_changed_rows_are_written(tmp_path):
     with MapStore(tmp_path / "map.sqlite") as s:
         doc = _doc(3)
-        assert s.sync(doc) == 3 + 2 + 1  # asrs, links, the robot name
-        assert s.sync(doc) == 0
+        assert s.sync(doc).rows == 3 + 2 + 1  # asrs, links, the robot name
+        assert s.sync(doc).rows == 0
         doc["asrs"][1]["scans"] = 9
         doc["cycles"].append({"time": 1.0, "asr": 3, "matches": 1, "accepted": False, "iou": 0.1,
                               "reason": "x"})
-        assert s.sync(doc) == 2
+        assert s.sync(doc) == Synced(2, [2])
         assert s.load() == doc
 
 
@@ -81,7 +81,7 @@ _WRITER = textwrap.dedent("""
     import sys
     sys.path.insert(0, {root!r})
     from tests.test_store import _doc
-    from service.store import MapStore
+    from service.store import MapStore, Synced
     s = MapStore(sys.argv[1])
     start = (s.load() or {{"cycles": []}})["cycles"]
     gen = len(start)
