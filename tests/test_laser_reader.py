@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from laser.emulator import LMS2xxEmulator
 from laser.errors import ConfigError, LinkLost
+from laser.probe import emulated_laser, probe
 from laser.reader import LMS2xx, Timeouts
 from laser.sources import constant, fixed
 from laser.timing import transmit_time
@@ -211,3 +212,18 @@ def test_noise_between_telegrams_never_breaks_the_stream(noise):
             time.sleep(0.01)
         assert lms.counters["scans"] >= seen + 3
         assert lms.link_state == "up" and not errors
+
+
+def test_a_port_that_cannot_be_opened_is_link_lost_naming_it():
+    with pytest.raises(LinkLost, match="cannot open /dev/no-such-lms"):
+        LMS2xx("/dev/no-such-lms", timeouts=FAST)
+
+
+def test_probe_reports_type_configuration_rate_and_ranges():
+    with emulated_laser(constant(3.0), baud=9600, rate_limit=False, boot_time=0.05) as (pair, _emu):
+        report = probe(pair.path, 38400, duration=0.3, timeouts=FAST)
+    text = "\n".join(report.lines())
+    assert report.device_type == "LMS200;30106" and report.detected_baud == 9600 and report.baudrate == 38400
+    assert report.scans > 3 and report.count == 181
+    assert report.ranges_m == pytest.approx((3.0, 3.0, 3.0))
+    assert "units mm, measuring mode 5" in text and "Hz" in text
