@@ -233,9 +233,10 @@ class Config:
 
     def mapper_params(self):
         """``MapperParams`` with the ``[mapper]`` overrides applied."""
-        from mapper import MapperParams
-
-        return MapperParams(**dict(self.mapper))
+        cls = _params_class()
+        if cls is None:
+            raise ImportError("the mapper has no MapperParams (mapper/params.py)")
+        return cls(**dict(self.mapper))
 
 
 _SECTION_TYPES = {
@@ -244,13 +245,23 @@ _SECTION_TYPES = {
 }
 
 
-def _mapper_fields() -> dict[str, Any] | None:
-    """MapperParams field defaults by name, or None while the mapper has no parameters class."""
+def _params_class():
     try:
         from mapper import MapperParams
     except ImportError:
+        try:
+            from mapper.params import MapperParams
+        except ImportError:
+            return None
+    return MapperParams
+
+
+def _mapper_fields() -> dict[str, Any] | None:
+    """MapperParams field defaults by name, or None while the mapper has no parameters class."""
+    cls = _params_class()
+    if cls is None:
         return None
-    return {f.name: getattr(MapperParams(), f.name) for f in dataclasses.fields(MapperParams)}
+    return {f.name: getattr(cls(), f.name) for f in dataclasses.fields(cls)}
 
 
 def _check_mapper(table: dict, problems: list[str]) -> tuple[tuple[str, Any], ...]:

@@ -101,9 +101,19 @@ def test_zenoh_config_excludes_endpoints_in_the_toml(tmp_path):
         load(_write(tmp_path, '[zenoh]\nconfig = "z.json5"\nlisten = ["tcp/127.0.0.1:1"]\n'))
 
 
-def test_mapper_overrides_are_kept_by_name():
-    cfg = parse({"mapper": {}})
-    assert cfg.mapper == ()
+def test_mapper_overrides_are_validated_against_mapper_params():
+    cfg = parse({"mapper": {"passage_width": 0.7}})
+    assert cfg.mapper == (("passage_width", 0.7),) and cfg.mapper_params().passage_width == 0.7
+    with pytest.raises(ConfigError) as e:
+        parse({"mapper": {"pasage_width": 0.7, "laser_x": "near"}}, "f.toml")
+    lines = str(e.value).splitlines()
+    assert lines[0].startswith("f.toml: mapper.pasage_width: expected a MapperParams field (")
+    assert lines[0].endswith("found an unknown key") and "passage_width" in lines[0]
+    assert lines[1] == 'f.toml: mapper.laser_x: expected a number; found "near"'
+
+
+def test_an_integer_is_accepted_for_a_float_parameter():
+    assert parse({"mapper": {"passage_width": 1}}).mapper_params().passage_width == 1.0
 
 
 def test_store_path_follows_state_directory(monkeypatch, tmp_path):
