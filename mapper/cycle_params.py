@@ -1,0 +1,99 @@
+"""Parameters of the topological map, the global metric map and cycle closing.
+
+The paper's plain method (method.md §5) is :meth:`CycleParams.paper`: every extension of §7 off.
+The defaults switch the extensions on. Units: metres, radians, m², fractions in 0..1.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, slots=True)
+class CycleParams:
+    """Switches and thresholds of cycle detection and closing (frozen; replace() to change)."""
+
+    enabled: bool = True
+    """Run the cycle check at all. Off: a pure topological map with a drifting global map."""
+
+    regrowth_fraction: float = 0.25
+    """Re-check the current ASR when its area grew by more than this fraction (of the area at
+    its last check). The paper re-checks a growing ASR so that a match rejected early (ASR6/ASR7)
+    can pass later; 25 % keeps the number of checks per ASR small (about log(area) of them)."""
+
+    min_area: float = 1.0
+    """m². ASRs smaller than this are not checked: a sliver seen through a doorway has a centre
+    that lands anywhere and would cause a chance match."""
+
+    exclude_hops: int = 1
+    """Candidates this many topological hops or fewer from the current ASR are excluded. The paper
+    excludes the current ASR and the one it was entered from (1). Beyond the paper, 2 also skips
+    the ASR two transitions back, which overlaps the current one in a corridor without any cycle."""
+
+    hindsight: bool = True
+    """§7: when ASR k matches j, accept earlier crosscheck-rejected pairs (a, b) where a is a
+    topological neighbour of k and b of j (the paper's ASR6/ASR7 case, in hindsight)."""
+
+    hindsight_hops: int = 1
+    """How many topological hops counts as "neighbour" for hindsight acceptance."""
+
+    verify: bool = True
+    """§7: confirm a match by aligning the two ASRs' surfaces (ICP on points sampled along their
+    ``surface`` edges, in the global frame) and requiring a low residual."""
+
+    verify_max_residual: float = 0.15
+    """m. Largest RMS point-to-nearest-point distance of the matched surface points after ICP.
+    Wall points of one place re-seen from another viewpoint agree to a few cm; 15 cm tolerates
+    segment fitting noise of both ASRs."""
+
+    verify_min_inliers: float = 0.4
+    """Fraction of the smaller ASR's surface points that must lie within ``verify_inlier_distance``
+    of the other ASR's surfaces after alignment. Two different places rarely share 40 % of walls."""
+
+    verify_inlier_distance: float = 0.2
+    """m. A surface point is an inlier when its nearest surface point of the other ASR is this close."""
+
+    verify_max_correction: float = 2.0
+    """m. The ICP correction may move the current ASR this far at most: beyond it the drift is
+    larger than the overlap test assumed and the alignment found is a different local minimum."""
+
+    verify_max_rotation: float = 0.5
+    """rad. Largest rotation ICP may apply (same reason as ``verify_max_correction``)."""
+
+    sample_spacing: float = 0.05
+    """m. Spacing of the points sampled along surface edges for ICP."""
+
+    realign: bool = True
+    """§7: relax the ASR-level pose graph after every accepted cycle (MapRealigned)."""
+
+    odometry_sigma_xy: float = 0.05
+    """m per metre travelled (plus a 5 cm floor). Standard deviation of an odometry edge's
+    translation between consecutive ASRs: wheel odometry drifts a few cm per metre."""
+
+    odometry_sigma_theta: float = 0.03
+    """rad per metre travelled (plus a 0.01 rad floor): the heading drift of odometry edges."""
+
+    loop_sigma_xy: float = 0.1
+    """m. Standard deviation of a loop edge's translation (ICP alignment of two ASRs)."""
+
+    loop_sigma_theta: float = 0.05
+    """rad. Standard deviation of a loop edge's rotation."""
+
+    loop_sigma_unverified_xy: float = 1.0
+    """m. A loop edge without an ICP alignment only says the two centres coincide: loose."""
+
+    loop_sigma_unverified_theta: float = 3.0
+    """rad. Rotation of an unverified loop edge is unobserved: effectively free."""
+
+    posegraph_iterations: int = 20
+    """Largest number of Gauss-Newton iterations per realignment (it converges in 3-6)."""
+
+    @classmethod
+    def paper(cls) -> CycleParams:
+        """The paper's plain method: crosscheck and best overlap, no hindsight/verification/realignment."""
+        return cls(hindsight=False, verify=False, realign=False, exclude_hops=1)
+
+    def replace(self, **changes) -> CycleParams:
+        """A copy with some fields changed."""
+        return dataclasses.replace(self, **changes)

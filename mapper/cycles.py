@@ -1,0 +1,200 @@
+"""Geometry of the cycle check: ASRs in the global frame, a spatial index, overlap and surface alignment.
+
+Everything here is in the *global frame* (m, rad) unless a name says otherwise. The index answers
+"which ASRs' polygons contain this point" in O(log² N + k) with shapely STRtrees kept by the
+logarithmic method (Bentley & Saxe): trees of sizes 1, 2, 4, ... that are merged when two of equal
+size exist, so adding an ASR costs O(log N) amortised rebuild work and a query visits O(log N)
+trees of O(log N) depth. Changed polygons are re-added; stale entries are skipped by version.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from scipy.spatial import cKDTree
+
+from mapper.se2 import Pose, compose, transform_points, wrap
+from mapper.types import ASR
+
+
+def global_polygon(asr: ASR, origin: Pose | None = None) -> shapely.Polygon:
+    """The ASR's polygon in the global frame (its ``origin``, or the one given), made valid.
+
+    A self-touching boundary (possible after simplification) is repaired with ``make_valid`` and the
+    largest polygonal part kept: the cycle check needs one area, not slivers.
+    """
+    pts = transform_points(asr.origin if origin is None else origin, asr.boundary)
+    poly = shapely.Polygon(pts) if len(pts) >= 3 else shapely.Polygon()
+    if not poly.is_valid:
+        fixed = shapely.make_valid(poly)
+        parts = [g for g in shapely.get_parts(fixed) if isinstance(g, shapely.Polygon)]
+        if not parts:
+            return shapely.Polygon()
+        poly = max(parts, key=lambda g: g.area)
+    return poly
+
+
+def global_centre(asr: ASR, origin: Pose | None = None) -> tuple[float, float]:
+    """The ASR's centre (method.md §3) in the global frame (m)."""
+    p = transform_points(asr.origin if origin is None else origin, np.asarray(asr.centre, dtype=float))[0]
+    return (float(p[0]), float(p[1]))
+
+
+def iou(a: shapely.Geometry, b: shapely.Geometry) -> float:
+    """Intersection over union of two areas (0..1); 0 for empty geometry."""
+    union = shapely.union(a, b).area
+    return float(shapely.intersection(a, b).area / union) if union > 0 else 0.0
+
+
+class SpatialIndex:
+    """Polygons by integer id, queried by point (the logarithmic method over shapely STRtrees)."""
+
+    def __init__(self) -> None:
+        self._geoms: dict[int, shapely.Geometry] = {}
+        self._version: dict[int, int] = {}
+        # Each level: (tree, ids, versions); sizes kept roughly distinct powers of two.
+        self._levels: list[tuple[shapely.STRtree, np.ndarray, np.ndarray]] = []
+
+    def __len__(self) -> int:
+        return len(self._geoms)
+
+    def __contains__(self, key: int) -> bool:
+        return key in self._geoms
+
+    def geometry(self, key: int) -> shapely.Geometry:
+        return self._geoms[key]
+
+    def upsert(self, key: int, geom: shapely.Geometry) -> None:
+        """Add or replace the polygon of ``key``."""
+        self._geoms[key] = geom
+        self._version[key] = self._version.get(key, -1) + 1
+        ids, vers = np.array([key]), np.array([self._version[key]])
+        while self._levels and len(self._levels[-1][1]) <= len(ids):
+            _, lids, lvers = self._levels.pop()
+            ids, vers = np.concatenate([lids, ids]), np.concatenate([lvers, vers])
+        live = np.array([self._version.get(int(i)) == int(v) for i, v in zip(ids, vers, strict=True)])
+        ids, vers = ids[live], vers[live]
+        if len(ids):
+            self._levels.append((shapely.STRtree([self._geoms[int(i)] for i in ids]), ids, vers))
+
+    def remove(self, key: int) -> None:
+        self._geoms.pop(key, None)
+        self._version[key] = self._version.get(key, -1) + 1
+
+    def rebuild(self, geoms: dict[int, shapely.Geometry]) -> None:
+        """Replace everything (after a realignment moved every ASR): one tree."""
+        self._geoms = dict(geoms)
+        self._version = {k: self._version.get(k, -1) + 1 for k in set(self._version) | set(geoms)}
+        self._levels = []
+        if geoms:
+            ids = np.array(sorted(geoms))
+            vers = np.array([self._version[int(i)] for i in ids])
+            self._levels.append((shapely.STRtree([geoms[int(i)] for i in ids]), ids, vers))
+
+    def containing(self, x: float, y: float) -> list[int]:
+        """Ids whose polygon contains (or touches) the point (x, y), ascending."""
+        pt = shapely.Point(x, y)
+        out = set()
+        for tree, ids, vers in self._levels:
+            for n in tree.query(pt, predicate="intersects"):
+                k, v = int(ids[n]), int(vers[n])
+                if self._version.get(k) == v and k in self._geoms:
+                    out.add(k)
+        return sorted(out)
+
+
+def surface_points(asr: ASR, spacing: float, origin: Pose | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Points (N, 2) every ``spacing`` m along the ASR's ``surface`` edges and their unit normals
+    (N, 2), both in the global frame."""
+    b = np.asarray(asr.boundary, dtype=float)
+    if len(b) < 2:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    nxt = np.roll(b, -1, axis=0)
+    is_surface = np.array([e == "surface" for e in asr.edges[: len(b)]], dtype=bool)
+    if len(is_surface) < len(b):
+        is_surface = np.concatenate([is_surface, np.zeros(len(b) - len(is_surface), dtype=bool)])
+    a, c = b[is_surface], nxt[is_surface]
+    lengths = np.hypot(*(c - a).T)
+    keep = lengths > 1e-9
+    a, c, lengths = a[keep], c[keep], lengths[keep]
+    counts = np.maximum(1, np.ceil(lengths / spacing).astype(int))
+    seg = np.repeat(np.arange(len(a)), counts)
+    # Fractions (k + 0.5) / count along each edge: no point is shared by two edges.
+    frac = (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts) + 0.5) / counts[seg]
+    pts = a[seg] + frac[:, None] * (c[seg] - a[seg])
+    d = (c - a) / lengths[:, None]
+    normals = np.c_[-d[:, 1], d[:, 0]][seg]
+    pose = asr.origin if origin is None else origin
+    rot = transform_points((0.0, 0.0, pose[2]), normals)
+    return transform_points(pose, pts), rot
+
+
+@dataclass(frozen=True, slots=True)
+class Alignment:
+    """Result of aligning point set P onto Q: ``correction`` is the global-frame rigid motion
+    (m, m, rad) that moves P onto Q; ``rms`` (m) of inlier point-to-surface distances after it,
+    ``inliers`` the fraction of P within the inlier distance, ``shift`` (m) how far P's centroid moved."""
+
+    correction: Pose
+    rms: float
+    inliers: float
+    shift: float
+
+
+def align_points(
+    p: np.ndarray,
+    q: np.ndarray,
+    q_normals: np.ndarray,
+    inlier_distance: float,
+    start_distance: float = 1.0,
+    iterations: int = 30,
+) -> Alignment | None:
+    """Trimmed point-to-plane ICP of P (N, 2) onto surfaces sampled as Q (M, 2) with unit normals.
+
+    Global frame, metres. Each step solves the linearised least squares for (dθ, dx, dy) of
+    Σ ((R p + t - q)·n)², damped (Levenberg) so that a direction the surfaces do not constrain
+    (along a straight corridor) stays put instead of sliding. The correspondence gate shrinks from
+    ``start_distance`` to ``inlier_distance``, so a drift of about a metre is pulled in without
+    letting far, unrelated walls vote. None when a set has fewer than 10 points or nothing corresponds.
+    """
+    if len(p) < 10 or len(q) < 10:
+        return None
+    tree = cKDTree(q)
+    total: Pose = (0.0, 0.0, 0.0)
+    cur = p
+    ramp = max(2, (2 * iterations) // 3)
+    gates = np.concatenate(
+        [np.geomspace(start_distance, inlier_distance, ramp), np.full(iterations - ramp, inlier_distance)]
+    )
+    damping = 1e-3 * len(p)
+    for gate in gates:
+        d, j = tree.query(cur, distance_upper_bound=gate)
+        ok = np.isfinite(d)
+        if ok.sum() < 10:
+            return None
+        pp, qq, nn = cur[ok], q[j[ok]], q_normals[j[ok]]
+        # Rotation about the matched points' centroid keeps the system well conditioned.
+        m = pp.mean(axis=0)
+        r = pp - m
+        jac = np.c_[r[:, 0] * nn[:, 1] - r[:, 1] * nn[:, 0], nn]
+        res = np.einsum("ij,ij->i", qq - pp, nn)
+        x = np.linalg.solve(jac.T @ jac + damping * np.eye(3), jac.T @ res)
+        c, s = math.cos(x[0]), math.sin(x[0])
+        step = (
+            float(m[0] + x[1] - (c * m[0] - s * m[1])),
+            float(m[1] + x[2] - (s * m[0] + c * m[1])),
+            float(x[0]),
+        )
+        total = compose(step, total)
+        cur = transform_points(total, p)
+        if gate == inlier_distance and abs(x[0]) + abs(x[1]) + abs(x[2]) < 1e-6:
+            break
+    d, j = tree.query(cur, distance_upper_bound=inlier_distance)
+    ok = np.isfinite(d)
+    dist = np.abs(np.einsum("ij,ij->i", cur[ok] - q[j[ok]], q_normals[j[ok]]))
+    rms = float(np.sqrt(np.mean(dist**2))) if ok.any() else math.inf
+    shift = float(np.hypot(*(cur.mean(axis=0) - p.mean(axis=0))))
+    return Alignment((total[0], total[1], wrap(total[2])), rms, float(ok.mean()), shift)

@@ -1,0 +1,377 @@
+"""The global metric map and cycle closing (method.md §4 global poses, §5 the paper's check, §7 extensions).
+
+:class:`GlobalMap` owns the ASR records once they exist, the :class:`~mapper.topology.Topology`, a
+spatial index of the ASRs' polygons in the global frame, the cycle decisions, and the ASR pose graph.
+The mapper tells it when an ASR is created (:meth:`GlobalMap.add_created`), re-entered
+(:meth:`GlobalMap.enter`) or has changed (:meth:`GlobalMap.updated`); it answers with events.
+
+The cycle check (§5), run at creation and whenever the current ASR's area grew by more than
+``CycleParams.regrowth_fraction`` since its last check:
+
+1. c = the current ASR's centre in the global frame.
+2. Candidates: ASRs whose global polygon contains c (index query, O(log² N + k)), except the
+   current ASR, the ASR it was entered from (and, if ``exclude_hops`` > 1, any ASR that close in the
+   topological map) and the current ASR's own duplicates/original.
+3. Centre crosscheck: a candidate survives only if its centre lies inside the current polygon.
+4. Survivors ranked by IoU; the best is accepted (after surface verification when ``verify``), the
+   rest are reported as ``lower-overlap``.
+5. Closing: the current ASR becomes a duplicate of the match; the ASR it was entered from is linked,
+   through the crossed exit, to the match's exit nearest to that exit in the global frame (§5.5).
+6. Every decision is an event (CycleDetected / CycleRejected with its reason) and a ``cycles`` record.
+   A rejection repeated at a later growth check with the same reason is not reported twice.
+
+Frames: ``ASR.origin`` is the ASR frame's pose in the global frame (m, m, rad); ``odometry_origin``
+keeps the same poses as composed along the creation transitions only, never realigned (the
+drifting map the paper accepts), so that evaluation can compare both against ground truth.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+
+from mapper.cycle_params import CycleParams
+from mapper.cycles import (
+    Alignment,
+    SpatialIndex,
+    align_points,
+    global_centre,
+    global_polygon,
+    iou,
+    surface_points,
+)
+from mapper.events import CycleDetected, CycleRejected, Event, MapRealigned
+from mapper.posegraph import Edge, diagonal_info, optimise
+from mapper.se2 import Pose, between, compose, inverse, transform_points
+from mapper.topology import Topology, Transition, child_origin
+from mapper.types import ASR
+
+
+@dataclass(slots=True)
+class CycleRecord:
+    """One cycle decision as the map document stores it (``cycles``); ``time`` in s."""
+
+    time: float
+    asr: int
+    matches: int
+    accepted: bool
+    iou: float
+    reason: str
+
+    def to_dict(self) -> dict:
+        return {
+            "time": self.time,
+            "asr": self.asr,
+            "matches": self.matches,
+            "accepted": self.accepted,
+            "iou": self.iou,
+            "reason": self.reason,
+        }
+
+
+class GlobalMap:
+    """ASRs placed in one global frame, their topology, and cycle closing over them."""
+
+    def __init__(self, params: CycleParams | None = None) -> None:
+        self.params = params or CycleParams()
+        self.asrs: dict[int, ASR] = {}
+        self.topology = Topology()
+        self.index = SpatialIndex()
+        self.cycles: list[CycleRecord] = []
+        self.odometry_origin: dict[int, Pose] = {}
+        self.current: int | None = None
+        self.checks = 0
+        self.realignments = 0
+        self._came_from: dict[int, int | None] = {}
+        self._checked_area: dict[int, float] = {}
+        self._closed: set[int] = set()
+        self._rejected: dict[tuple[int, int], float] = {}
+        self._reported: set[tuple[int, int, str]] = set()
+        self._odometry_edges: list[Edge] = []
+        self._loop_edges: list[Edge] = []
+
+    # -- the mapper's calls -------------------------------------------------------------------
+    def add_first(self, asr: ASR) -> None:
+        """The first ASR; its ``origin`` (usually the identity) defines the global frame."""
+        self.asrs[asr.id] = asr
+        self.odometry_origin[asr.id] = tuple(asr.origin)
+        self.topology.add_node(asr.id)
+        self.current = asr.id
+        self._came_from[asr.id] = None
+        self.index.upsert(asr.id, global_polygon(asr))
+
+    def add_created(self, asr: ASR, src: int, exit_id: str, via: str | None, crossing_pose: Pose, t: float):
+        """ASR ``asr`` was created by crossing exit ``exit_id`` of ``src``; returns the check's events.
+
+        ``crossing_pose``: the robot pose in ``src``'s frame at the scan that created ``asr`` (m, rad);
+        it is also ``asr``'s frame seen from ``src``'s. Sets ``asr.origin`` (method.md §4).
+        """
+        parent = self.asrs[src]
+        asr.origin = child_origin(parent.origin, crossing_pose)
+        self.odometry_origin[asr.id] = child_origin(self.odometry_origin[src], crossing_pose)
+        self.asrs[asr.id] = asr
+        self.topology.add_creation(src, exit_id, asr.id, via, crossing_pose)
+        self._set_exit_to(parent, exit_id, asr.id)
+        if via is not None:
+            self._set_exit_to(asr, via, src)
+        d = math.hypot(crossing_pose[0], crossing_pose[1])
+        p = self.params
+        info = diagonal_info(max(0.05, p.odometry_sigma_xy * d), max(0.01, p.odometry_sigma_theta * d))
+        self._odometry_edges.append(Edge(src, asr.id, tuple(crossing_pose), info))
+        self._switch_to(asr.id, src)
+        return self.check(asr.id, t)
+
+    def enter(self, asr_id: int, src: int | None, t: float) -> list[Event]:
+        """The robot re-entered a known ASR from ``src`` (through a known transition)."""
+        self._switch_to(asr_id, src)
+        return []
+
+    def updated(self, asr_id: int, t: float) -> list[Event]:
+        """ASR ``asr_id`` changed (grew). Re-checks the current ASR once its area grew materially."""
+        asr = self.asrs[asr_id]
+        if asr_id != self.current:
+            self.index.upsert(asr_id, global_polygon(asr))
+            return []
+        last = self._checked_area.get(asr_id)
+        if last is None or asr.area > last * (1.0 + self.params.regrowth_fraction):
+            return self.check(asr_id, t)
+        return []
+
+    def lookup(self, asr_id: int, exit_id: str):
+        """The known transition through ``exit_id`` of ``asr_id`` (re-entry), or None."""
+        return self.topology.lookup(asr_id, exit_id)
+
+    # -- the check ------------------------------------------------------------------------------
+    def check(self, n: int, t: float) -> list[Event]:
+        """Run the cycle check for ASR ``n`` now (method.md §5); returns the decisions as events."""
+        p = self.params
+        asr = self.asrs[n]
+        if not p.enabled or n in self._closed or asr.area < p.min_area:
+            return []
+        self.checks += 1
+        self._checked_area[n] = asr.area
+        poly = global_polygon(asr)
+        c = global_centre(asr)
+        excluded = self.topology.within(n, p.exclude_hops) | {n}
+        if self._came_from.get(n) is not None:
+            excluded.add(self._came_from[n])
+        own = self.topology.canonical(n)
+        events: list[Event] = []
+        survivors = []
+        for m in self.index.containing(*c):
+            if m in excluded or self.topology.canonical(m) == own:
+                continue
+            pm = self.index.geometry(m)
+            cm = global_centre(self.asrs[m])
+            overlap = iou(poly, pm)
+            if not poly.intersects(shapely.Point(cm)):
+                self._rejected.setdefault((n, m), t)
+                events += self._decide(t, n, m, c, cm, overlap, "centre-crosscheck", False)
+            else:
+                survivors.append((overlap, m, cm))
+        survivors.sort(key=lambda s: (-s[0], s[1]))
+        done = False
+        for overlap, m, cm in survivors:
+            if done:
+                events += self._decide(t, n, m, c, cm, overlap, "lower-overlap", False)
+                continue
+            align = self._align(n, m) if (p.verify or p.realign) else None
+            if p.verify and not self._verified(align):
+                events += self._decide(t, n, m, c, cm, overlap, "verification", False)
+                continue
+            done = True
+            events += self._close(t, n, m, c, cm, overlap, "centre-crosscheck", align)
+        if done and p.realign:
+            events += self.realign(t)
+        return events
+
+    # -- helpers ------------------------------------------------------------------------------
+    def _switch_to(self, asr_id: int, src: int | None) -> None:
+        if self.current is not None and self.current in self.asrs:
+            self.index.upsert(self.current, global_polygon(self.asrs[self.current]))
+        self.current = asr_id
+        self._came_from[asr_id] = src
+        self.index.upsert(asr_id, global_polygon(self.asrs[asr_id]))
+
+    @staticmethod
+    def _set_exit_to(asr: ASR, exit_id: str | None, to: int, overwrite: bool = True) -> None:
+        for e in asr.exits:
+            if e.id == exit_id and (overwrite or e.to is None):
+                e.to = to
+
+    def _decide(self, t, n, m, c, cm, overlap, reason, accepted) -> list[Event]:
+        key = (n, m, reason)
+        if not accepted and key in self._reported:
+            return []
+        self._reported.add(key)
+        self.cycles.append(CycleRecord(float(t), n, m, accepted, float(overlap), reason))
+        cls = CycleDetected if accepted else CycleRejected
+        return [cls(float(t), n, m, tuple(c), tuple(cm), float(overlap), reason)]
+
+    def _align(self, n: int, m: int) -> Alignment | None:
+        p = self.params
+        pn, nn = surface_points(self.asrs[n], p.sample_spacing)
+        pm, nm = surface_points(self.asrs[m], p.sample_spacing)
+        # Align the smaller set onto the larger one: the inlier fraction is then about the part
+        # of the smaller ASR the larger one explains.
+        if len(pn) <= len(pm):
+            return align_points(pn, pm, nm, p.verify_inlier_distance)
+        a = align_points(pm, pn, nn, p.verify_inlier_distance)
+        if a is None:
+            return None
+        return Alignment(inverse(a.correction), a.rms, a.inliers, a.shift)
+
+    def _verified(self, a: Alignment | None) -> bool:
+        p = self.params
+        return (
+            a is not None
+            and a.rms <= p.verify_max_residual
+            and a.inliers >= p.verify_min_inliers
+            and a.shift <= p.verify_max_correction
+            and abs(a.correction[2]) <= p.verify_max_rotation
+        )
+
+    def _close(self, t, n, m, c, cm, overlap, reason, align: Alignment | None) -> list[Event]:
+        p = self.params
+        dup, match = self.asrs[n], self.asrs[m]
+        dup.duplicate_of = m
+        self._closed.add(n)
+        good = align is not None and self._verified(align)
+        # dup's frame corrected onto match (global frame), then match's frame seen from dup's.
+        dup_origin = compose(align.correction, dup.origin) if good else dup.origin
+        rel_nm = between(dup_origin, match.origin)
+        entry = self.topology.entered.get(n)
+        if entry is None:
+            self.topology.close_onto(n, m, None, rel_nm)
+        else:
+            parent = self.asrs[entry.src]
+            crossed = next((e for e in parent.exits if e.id == entry.exit), None)
+            g = self._nearest_exit(parent, crossed, match)
+            self.topology.close_onto(n, m, g.id if g else None, compose(entry.rel, rel_nm))
+            self._set_exit_to(parent, entry.exit, m)
+            if g is not None:
+                self._set_exit_to(match, g.id, entry.src, overwrite=False)
+        if good:
+            info = diagonal_info(p.loop_sigma_xy, p.loop_sigma_theta)
+        else:
+            info = diagonal_info(p.loop_sigma_unverified_xy, p.loop_sigma_unverified_theta)
+        self._loop_edges.append(Edge(m, n, inverse(rel_nm), info))
+        events = self._decide(t, n, m, c, cm, overlap, reason, True)
+        if p.hindsight and reason != "hindsight":
+            events += self._hindsight(t, n, m)
+        return events
+
+    def _nearest_exit(self, parent: ASR, crossed, match: ASR):
+        """The match's exit whose global midpoint is nearest the crossed exit's (None: no exits)."""
+        if not match.exits:
+            return None
+        if crossed is None:
+            ref = np.array(global_centre(match))
+        else:
+            ref = transform_points(parent.origin, np.array(crossed.midpoint))[0]
+        mids = transform_points(match.origin, np.array([e.midpoint for e in match.exits]))
+        return match.exits[int(np.argmin(np.hypot(*(mids - ref).T)))]
+
+    def _hindsight(self, t: float, n: int, m: int) -> list[Event]:
+        """§7: accept earlier crosscheck rejections (a, b) with a near n and b near m topologically."""
+        hops = self.params.hindsight_hops
+        near_n, near_m = self.topology.within(n, hops), self.topology.within(m, hops)
+        events: list[Event] = []
+        for a, b in sorted(self._rejected):
+            if a in self._closed or a not in near_n or b not in near_m:
+                continue
+            if self.topology.canonical(a) == self.topology.canonical(b):
+                continue
+            del self._rejected[(a, b)]
+            align = self._align(a, b) if (self.params.verify or self.params.realign) else None
+            if self.params.verify and not self._verified(align):
+                continue
+            pa, ca, cb = (
+                global_polygon(self.asrs[a]),
+                global_centre(self.asrs[a]),
+                global_centre(self.asrs[b]),
+            )
+            overlap = iou(pa, global_polygon(self.asrs[b]))
+            events += self._close(t, a, b, ca, cb, overlap, "hindsight", align)
+        return events
+
+    # -- realignment ------------------------------------------------------------------------------
+    def realign(self, t: float) -> list[Event]:
+        """Relax the ASR pose graph (odometry + loop edges) and move every ASR's origin (§7)."""
+        if not self._loop_edges:
+            return []
+        poses = {k: tuple(a.origin) for k, a in self.asrs.items()}
+        res = optimise(
+            poses,
+            self._odometry_edges + self._loop_edges,
+            fixed=min(poses),
+            iterations=self.params.posegraph_iterations,
+        )
+        moved = 0.0
+        for k, a in self.asrs.items():
+            q = res.poses[k]
+            moved = max(moved, math.hypot(q[0] - a.origin[0], q[1] - a.origin[1]))
+            a.origin = q
+        self.index.rebuild({k: global_polygon(a) for k, a in self.asrs.items()})
+        self.realignments += 1
+        return [MapRealigned(float(t), len(self.asrs), len(self._loop_edges), moved, res.chi2_after)]
+
+    # -- the document ---------------------------------------------------------------------------
+    def sync_exits(self) -> None:
+        """Set every exit's ``to`` from the topology (exits may have been recomputed since)."""
+        for k, a in self.asrs.items():
+            dest = self.topology.destinations(k)
+            for e in a.exits:
+                e.to = dest.get(e.id, e.to)
+
+    def restore(self, asrs: list[ASR], links, cycles: list[CycleRecord]) -> None:
+        """Rebuild from a loaded document (ASRs in creation order, links, cycle records).
+
+        Transitions' relative poses are taken from the saved origins (the document does not keep
+        them); odometry edges from creation links, loop edges from accepted cycles.
+        """
+        p = self.params
+        for a in asrs:
+            self.asrs[a.id] = a
+            self.odometry_origin[a.id] = tuple(a.origin)
+            self.topology.add_node(a.id)
+            if a.duplicate_of is not None:
+                self.topology.duplicate_of[a.id] = a.duplicate_of
+                self._closed.add(a.id)
+        first = asrs[0].id if asrs else None
+        for ln in links:
+            o_src, o_dst = self.asrs[ln.src].origin, self.asrs[ln.dst].origin
+            self.topology.add_link(ln.src, ln.exit, ln.dst, ln.via, between(o_src, o_dst), ln.oneway)
+            # A creation is the first two-way link into a later ASR, or the one-way link a
+            # duplicate keeps back to the ASR it was entered from.
+            if ln.oneway:
+                child, parent, via, crossed = ln.src, ln.dst, ln.exit, ln.via
+            elif (
+                ln.dst not in self.topology.entered
+                and ln.dst != first
+                and (self.asrs[ln.dst].created >= self.asrs[ln.src].created)
+            ):
+                child, parent, via, crossed = ln.dst, ln.src, ln.via, ln.exit
+            else:
+                continue
+            rel = between(self.asrs[parent].origin, self.asrs[child].origin)
+            self.topology.entered[child] = Transition(parent, crossed, child, via, rel)
+            self._came_from[child] = parent
+            d = math.hypot(rel[0], rel[1])
+            info = diagonal_info(max(0.05, p.odometry_sigma_xy * d), max(0.01, p.odometry_sigma_theta * d))
+            self._odometry_edges.append(Edge(parent, child, rel, info))
+        self.cycles = list(cycles)
+        for r in self.cycles:
+            self._reported.add((r.asr, r.matches, r.reason))
+            if r.accepted and r.asr in self.asrs and r.matches in self.asrs:
+                rel = between(self.asrs[r.matches].origin, self.asrs[r.asr].origin)
+                self._loop_edges.append(
+                    Edge(r.matches, r.asr, rel, diagonal_info(p.loop_sigma_xy, p.loop_sigma_theta))
+                )
+        geoms = {k: global_polygon(a) for k, a in self.asrs.items()}
+        self.index.rebuild(geoms)
+        if asrs:
+            self.current = asrs[-1].id

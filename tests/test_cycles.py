@@ -1,0 +1,165 @@
+"""Cycle detection and closing on constructed ASRs (method.md §5 and §7)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from mapper.cycle_params import CycleParams
+from mapper.cycles import SpatialIndex, align_points
+from mapper.events import CycleDetected, CycleRejected, MapRealigned
+from mapper.globalmap import GlobalMap
+from mapper.se2 import between, transform_points
+from tests.synthetic_asrs import box_asr, drive
+
+PAPER = CycleParams.paper()
+FULL = CycleParams()
+
+# A corridor 2 m wide around a 6 m x 6 m block: south, east, north, west sides, then south again.
+LOOP = [
+    ((0, 0, 10, 2), (1.0, 1.0, 0.0), "EN"),
+    ((8, 0, 10, 10), (9.0, 1.0, math.pi / 2), "SN"),
+    ((0, 8, 10, 10), (9.0, 9.0, math.pi), "EW"),
+    ((0, 0, 2, 10), (1.0, 9.0, -math.pi / 2), "NS"),
+    ((0, 0, 10, 2), (1.0, 1.0, 0.0), "EN"),
+    ((8, 0, 10, 10), (9.0, 1.0, math.pi / 2), "SN"),
+]
+
+
+def accepted(events):
+    return [(e.asr, e.matches, e.reason) for e in events if isinstance(e, CycleDetected)]
+
+
+@pytest.mark.parametrize("params", [PAPER, FULL], ids=["paper", "extended"])
+def test_corridor_loop_revisit_is_detected_with_no_false_cycle(params):
+    gm = GlobalMap(params)
+    events = drive(gm, LOOP, per_step=(0.15, -0.1, 0.02))
+    assert accepted(events) == [(5, 1, "centre-crosscheck"), (6, 2, "centre-crosscheck")]
+    assert gm.asrs[5].duplicate_of == 1 and gm.asrs[6].duplicate_of == 2
+    # The ASR 5 was entered from (4) now leads into 1 through 1's nearest exit, both ways.
+    t = gm.topology.lookup(4, gm.topology.entered[5].exit)
+    assert t.dst == 1 and gm.topology.lookup(1, t.via).dst == 4
+    assert any(ln.oneway and ln.src == 5 and ln.dst == 4 for ln in gm.topology.links)
+    records = [r.to_dict() for r in gm.cycles if r.accepted]
+    assert records[0]["asr"] == 5 and records[0]["matches"] == 1 and 0 < records[0]["iou"] <= 1
+
+
+def test_realignment_pulls_the_drifted_loop_back_onto_the_truth():
+    gm = GlobalMap(FULL)
+    events = drive(gm, LOOP[:5], per_step=(0.15, -0.1, 0.02))
+    assert any(isinstance(e, MapRealigned) for e in events)
+    truth = {k + 1: f for k, (_, f, _) in enumerate(LOOP[:5])}
+
+    def err(origins):
+        return max(math.hypot(origins[k][0] - truth[k][0], origins[k][1] - truth[k][1]) for k in truth)
+
+    assert err({k: a.origin for k, a in gm.asrs.items()}) < 0.3 * err(gm.odometry_origin)
+
+
+ROOMS = [  # two identical 5 m x 4 m rooms joined by a 3 m corridor
+    ((0, 0, 5, 4), (2.5, 2.0, 0.0), "E"),
+    ((5, 1.5, 8, 2.5), (5.5, 2.0, 0.0), "EW"),
+    ((8, 0, 13, 4), (10.5, 2.0, 0.0), "W"),
+]
+
+
+@pytest.mark.parametrize("params", [PAPER, FULL], ids=["paper", "extended"])
+# The last drift moves room 3 onto room 1 until their polygons overlap, but not their centres.
+@pytest.mark.parametrize("drift", [(0.0, 0.0, 0.0), (-0.5, 0.3, 0.05), (-1.0, -0.4, -0.08), (-2.0, 0.3, 0.0)])
+def test_identical_rooms_in_different_places_do_not_close_a_cycle(params, drift):
+    gm = GlobalMap(params)
+    events = drive(gm, ROOMS, per_step=drift)
+    assert accepted(events) == []
+    assert all(a.duplicate_of is None for a in gm.asrs.values())
+
+
+# Room 1 with a corridor east (2); around a loop (3, 4, 5) the robot re-enters the room from the
+# west and sees only its western strip (6): 6's centre lies in 1, but 1's centre not in 6. Then it
+# walks into the corridor again (7), which matches 2.
+HINDSIGHT = [
+    ((0, 0, 4, 4), (2.0, 2.0, 0.0), "E"),
+    ((4, 1, 10, 3), (4.5, 2.0, 0.0), "WE"),
+    ((10, 1, 12, 9), (11.0, 2.5, math.pi / 2), "SN"),
+    ((0, 7, 12, 9), (11.0, 8.0, math.pi), "EW"),
+    ((-2, 1, 0, 9), (-1.0, 8.0, -math.pi / 2), "NS"),
+    ((0, 0, 1.5, 4), (0.5, 2.0, 0.0), "E"),
+    ((4, 1, 10, 3), (4.5, 2.0, 0.0), "WE"),
+]
+
+
+def test_a_partial_overlap_fails_the_crosscheck_and_is_accepted_in_hindsight():
+    gm = GlobalMap(FULL)
+    events = drive(gm, HINDSIGHT, per_step=(0.05, 0.04, 0.005))
+    rejected = [(e.asr, e.matches, e.reason) for e in events if isinstance(e, CycleRejected)]
+    assert (6, 1, "centre-crosscheck") in rejected
+    assert accepted(events) == [(7, 2, "centre-crosscheck"), (6, 1, "hindsight")]
+    assert gm.asrs[6].duplicate_of == 1
+
+
+def test_the_paper_method_alone_leaves_the_partial_overlap_rejected():
+    gm = GlobalMap(PAPER)
+    events = drive(gm, HINDSIGHT, per_step=(0.05, 0.04, 0.005))
+    assert accepted(events) == [(7, 2, "centre-crosscheck")]
+    assert gm.asrs[6].duplicate_of is None
+
+
+def test_a_growing_asr_is_checked_again_and_passes_once_it_covers_the_match():
+    gm = GlobalMap(PAPER)
+    drive(gm, HINDSIGHT[:6], per_step=(0.05, 0.04, 0.005))
+    assert gm.asrs[6].duplicate_of is None
+    small = gm.asrs[6]
+    grown = box_asr(6, (0, 0, 3.5, 4), HINDSIGHT[5][1], "E")
+    small.boundary, small.centre = grown.boundary, grown.centre
+    events = gm.updated(6, 6.5)
+    assert accepted(events) == [(6, 1, "centre-crosscheck")]
+    assert gm.updated(6, 6.6) == []  # closed: no further checks
+
+
+def test_several_survivors_take_the_largest_overlap_and_report_the_rest():
+    route = [
+        ((0, 0, 6, 2), (1.0, 1.0, 0.0), "E"),
+        ((5, 0, 12, 2), (5.5, 1.0, 0.0), "WE"),
+        ((12, 0, 14, 10), (13.0, 1.0, math.pi / 2), "SN"),
+        ((0, 8, 14, 10), (13.0, 9.0, math.pi), "EW"),
+        ((-2, 0, 0, 10), (-1.0, 9.0, -math.pi / 2), "NS"),
+        ((1, 0, 10.8, 2), (1.0, 1.0, 0.0), "WE"),
+    ]
+    events = drive(GlobalMap(PAPER), route)
+    assert accepted(events) == [(6, 2, "centre-crosscheck")]
+    assert [(e.asr, e.matches, e.reason) for e in events if isinstance(e, CycleRejected)] == [
+        (6, 1, "lower-overlap")
+    ]
+
+
+def test_no_checks_when_disabled():
+    events = drive(GlobalMap(CycleParams(enabled=False)), LOOP)
+    assert accepted(events) == []
+
+
+def test_spatial_index_answers_point_queries_after_updates_and_rebuilds():
+    import shapely
+
+    idx = SpatialIndex()
+    for k in range(40):
+        idx.upsert(k, shapely.box(k, 0, k + 1.5, 1))
+    assert idx.containing(10.2, 0.5) == [9, 10]
+    idx.upsert(10, shapely.box(100, 0, 101, 1))
+    assert idx.containing(10.2, 0.5) == [9]
+    assert idx.containing(100.5, 0.5) == [10]
+    idx.remove(9)
+    assert idx.containing(10.2, 0.5) == []
+    idx.rebuild({1: shapely.box(0, 0, 1, 1)})
+    assert idx.containing(0.5, 0.5) == [1] and idx.containing(10.2, 0.5) == []
+
+
+def test_icp_recovers_a_small_rigid_misalignment_of_an_l_shaped_wall():
+    wall = np.concatenate(
+        [np.c_[np.linspace(0, 5, 100), np.zeros(100)], np.c_[np.zeros(80), np.linspace(0, 4, 80)]]
+    )
+    normals = np.concatenate([np.tile([0.0, 1.0], (100, 1)), np.tile([1.0, 0.0], (80, 1))])
+    moved = transform_points((0.3, -0.2, 0.05), wall)
+    a = align_points(moved, wall, normals, inlier_distance=0.05)
+    assert a.rms < 0.01 and a.inliers > 0.95
+    back = transform_points(a.correction, moved)
+    assert np.max(np.hypot(*(back - wall).T)) < 0.01
+    assert between(a.correction, (0, 0, 0))[2] == pytest.approx(0.05, abs=1e-3)
