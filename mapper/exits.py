@@ -1,0 +1,146 @@
+"""Occlusions and exits of one view (method.md §2.1-2.2), robot frame, metres.
+
+Surfaces come in angular order (:class:`mapper.lines.Surfaces`). Between two consecutive surfaces
+of different breakpoint clusters lies a *gap*:
+
+* **no-return gap** (a no-return reading lies between them): covered by the segment joining the two
+  surfaces' ends;
+* **depth discontinuity**: the occluding end P is the nearer of the two ends (distance from the
+  laser); the gap opens on the side of P away from its own surface. Every surface angularly across
+  the gap (all surfaces beyond P in sweep order, near or far) offers its closest point Q to P
+  (closest point on the segment, not only endpoints); a candidate P->Q is *visible* when every
+  surface angularly between P and Q lies beyond the line PQ as seen from the laser (so PQ crosses no
+  surface and hides nothing nearer). The shortest visible candidate covers the occlusion.
+
+A covering segment at least ``passage_width`` long is an **exit**; a shorter one **closes** the gap
+(chair legs, table legs): the view's boundary follows it and it is labelled ``surface``. A gap with
+no visible candidate stays open and is labelled ``unknown``.
+
+Each covering segment spans an interval of the sweep (from P's position to Q's, positions ``2k + t``
+for the point at fraction t along surface k). Where intervals nest, the outer one wins: it is nearer
+the robot and what lies inside it was seen *through* it (the second room behind a doorway). The two
+covers of one doorway (found from each jamb) span the same interval and become one exit.
+All candidates of all gaps are evaluated in a few broadcast numpy operations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mapper.lines import Surfaces, _cross
+from mapper.params import MapperParams
+
+#: Labels of a gap's cover: an exit, a closed gap (labelled ``surface`` on the boundary), or open.
+EXIT, CLOSED, OPEN = "exit", "surface", "unknown"
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Covers:
+    """The selected covers of one view's gaps, in sweep order (robot frame, m).
+
+    ``a``, ``b`` (N, 2): the cover's clockwise and counter-clockwise ends; ``label`` (N,) one of
+    ``exit``/``surface``/``unknown``; ``lo``, ``hi`` (N,): the sweep positions of a and b (see module
+    docstring); ``occluding`` (N,) which end is the occluding end P (0: a, 1: b; -1 for no-return gaps).
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    label: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    occluding: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.a)
+
+    @property
+    def exits(self) -> np.ndarray:
+        """Exit segments (E, 2, 2), robot frame (m)."""
+        m = self.label == EXIT
+        return np.stack([self.a[m], self.b[m]], axis=1)
+
+
+def closest_on_segments(p: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest points on segments to points, broadcast: ``p`` (..., 2), ``seg`` (..., 2, 2).
+
+    Returns the points (..., 2) and their fractions t in [0, 1] along each segment.
+    """
+    a = seg[..., 0, :]
+    ab = seg[..., 1, :] - a
+    den = np.maximum(np.einsum("...i,...i->...", ab, ab), 1e-18)
+    t = np.clip(np.einsum("...i,...i->...", p - a, ab) / den, 0.0, 1.0)
+    return a + t[..., None] * ab, t
+
+
+def find_covers(surf: Surfaces, p: MapperParams) -> Covers:
+    """Covers of every gap of one view; see the module docstring."""
+    seg = surf.segments
+    m = len(seg)
+    empty = np.zeros((0, 2))
+    if m < 2:
+        z = np.zeros(0)
+        return Covers(empty, empty, np.zeros(0, dtype=object), z, z, np.zeros(0, dtype=int))
+    o = np.asarray(surf.points.origin)
+    gap = np.flatnonzero(surf.cluster[:-1] != surf.cluster[1:])  # gap g lies between gap[g] and +1
+    no_ret = surf.points.gap_no_return[surf.pidx[gap + 1, 0]]
+    end_j = seg[gap, 1]
+    start_n = seg[gap + 1, 0]
+    right = np.hypot(*(end_j - o).T) <= np.hypot(*(start_n - o).T)  # P = end of j, opening CCW
+    pp = np.where(right[:, None], end_j, start_n)
+
+    # every candidate (gap g, surface k) at once
+    q, tq = closest_on_segments(pp[:, None, :], seg[None, :, :, :])
+    length = np.hypot(q[..., 0] - pp[:, None, 0], q[..., 1] - pp[:, None, 1])
+    k = np.arange(m)[None, :]
+    across = np.where(right[:, None], k > gap[:, None], k <= gap[:, None])
+    # surfaces strictly between P and Q must lie beyond the line PQ (seen from the laser)
+    lo_k = np.where(right[:, None], gap[:, None] + 1, k + 1)  # first surface strictly between
+    hi_k = np.where(right[:, None], k - 1, gap[:, None])  # last one
+    idx = np.arange(m)
+    inside = (idx[None, None, :] >= lo_k[..., None]) & (idx[None, None, :] <= hi_k[..., None])  # (G,M,M)
+    d = q - pp[:, None, :]  # (G, M, 2) line direction
+    dn = np.maximum(np.hypot(d[..., 0], d[..., 1]), 1e-9)
+    side_o = _cross(d, o - pp[:, None, :]) / dn  # signed distance of the laser from the line
+    sgn = np.where(side_o >= 0, 1.0, -1.0)
+    ends = seg.reshape(1, 1, 2 * m, 2) - pp[:, None, None, :]  # (G, 1, 2M, 2)
+    side_e = _cross(d[:, :, None, :], ends) / dn[..., None]  # (G, M, 2M)
+    in_front = (side_e * sgn[..., None] > p.visibility_tolerance).reshape(*side_e.shape[:2], m, 2).any(-1)
+    visible = across & ~(inside & in_front).any(-1)
+    length = np.where(visible, length, np.inf)
+    best = np.argmin(length, axis=1)
+    g_ = np.arange(len(gap))
+    best_len = length[g_, best]
+    qb = q[g_, best]
+    label = np.where(best_len >= p.passage_width, EXIT, CLOSED).astype(object)
+    label[~np.isfinite(best_len)] = OPEN
+    pos_p = np.where(right, 2 * gap + 1, 2 * gap + 2).astype(float)
+    pos_q = 2 * best + tq[g_, best]
+    a = np.where(right[:, None], pp, qb)
+    b = np.where(right[:, None], qb, pp)
+    lo, hi = np.minimum(pos_p, pos_q), np.maximum(pos_p, pos_q)
+    occl = np.where(right, 0, 1)
+    # an open gap, or a no-return gap: the segment joining the surfaces' ends
+    join = (label == OPEN) | no_ret
+    a[join], b[join] = end_j[join], start_n[join]
+    lo[join], hi[join] = 2 * gap[join] + 1, 2 * gap[join] + 2
+    occl[no_ret] = -1
+    wide = np.hypot(*(b - a).T) >= p.passage_width
+    label[no_ret] = np.where(wide[no_ret], EXIT, CLOSED)
+    return _select(Covers(a, b, label, lo, hi, occl))
+
+
+def _select(c: Covers) -> Covers:
+    """Keep the outermost of nested covers; identical or crossing later ones are dropped."""
+    if len(c) == 0:
+        return c
+    order = np.lexsort((-c.hi, c.lo))
+    keep = []
+    last_hi = -np.inf
+    for i in order.tolist():  # one step per gap, not per beam
+        if c.lo[i] >= last_hi - 1e-9:
+            keep.append(i)
+            last_hi = c.hi[i]
+    k = np.asarray(keep, dtype=int)
+    return Covers(c.a[k], c.b[k], c.label[k], c.lo[k], c.hi[k], c.occluding[k])
