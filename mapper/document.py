@@ -1,0 +1,172 @@
+"""The map document ``asrmap/map/1``, out and in (shared/design/interfaces.md).
+
+::
+
+    {"schema": "asrmap/map/1", "robot": "pioneer",
+     "asrs": [{"id", "created", "origin", "boundary", "edges", "centre", "exits": [{"id", "a", "b", "to"}],
+               "duplicate_of", "scans"}],
+     "links": [{"from", "exit", "to", "via", "oneway"}],
+     "cycles": [{"time", "asr", "matches", "accepted", "iou", "reason"}]}
+
+``created`` (s), ``origin`` (the ASR frame's global pose: m, m, rad); ``boundary``, ``centre`` and
+exits in the ASR's own frame (m), boundary counter-clockwise and not closed, ``edges[i]`` labelling
+boundary[i] -> boundary[i+1]. Every number is a Python float or int, so ``json`` writes the shortest
+repr that reads back to the same float: document -> JSON -> document is exact, and so is
+document -> records -> document.
+
+The ASR's ``centre_rule`` is not a document field; on reading it is recovered from the geometry
+(``centroid`` when the centre is the polygon's centroid, else ``point_on_surface``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import shapely
+
+from mapper.cycle_params import CycleParams
+from mapper.globalmap import CycleRecord, GlobalMap
+from mapper.topology import Link
+from mapper.types import ASR, EDGE_LABELS, Exit
+
+SCHEMA = "asrmap/map/1"
+
+
+class DocumentError(ValueError):
+    """A map document that does not follow ``asrmap/map/1``; the message names the field."""
+
+
+@dataclass(slots=True)
+class MapDocument:
+    """A map document read into records: ASRs in creation order, links, cycle decisions."""
+
+    robot: str = "pioneer"
+    asrs: list[ASR] = field(default_factory=list)
+    links: list[Link] = field(default_factory=list)
+    cycles: list[CycleRecord] = field(default_factory=list)
+
+
+def _xy(p) -> list[float]:
+    return [float(p[0]), float(p[1])]
+
+
+def asr_to_dict(asr: ASR) -> dict[str, Any]:
+    """One ASR as the document (and the ``asrmap/<robot>/asr/<id>`` payload) stores it."""
+    return {
+        "id": int(asr.id),
+        "created": float(asr.created),
+        "origin": [float(v) for v in asr.origin],
+        "boundary": [_xy(p) for p in np.asarray(asr.boundary, dtype=float)],
+        "edges": [str(e) for e in asr.edges],
+        "centre": _xy(asr.centre),
+        "exits": [
+            {"id": e.id, "a": _xy(e.a), "b": _xy(e.b), "to": None if e.to is None else int(e.to)}
+            for e in asr.exits
+        ],
+        "duplicate_of": None if asr.duplicate_of is None else int(asr.duplicate_of),
+        "scans": int(asr.scans),
+    }
+
+
+def _need(d: dict, key: str, where: str):
+    if key not in d:
+        raise DocumentError(f"{where}: missing field {key!r} (asrmap/map/1, see shared/design/interfaces.md)")
+    return d[key]
+
+
+def asr_from_dict(d: dict[str, Any]) -> ASR:
+    """Read one ASR record; raises :class:`DocumentError` naming a missing or bad field."""
+    where = f"asr {d.get('id', '?')}"
+    boundary = np.array(_need(d, "boundary", where), dtype=float).reshape(-1, 2)
+    edges = list(_need(d, "edges", where))
+    if len(edges) != len(boundary):
+        raise DocumentError(f"{where}: {len(edges)} edge labels for {len(boundary)} boundary vertices")
+    bad = sorted(set(edges) - set(EDGE_LABELS))
+    if bad:
+        raise DocumentError(f"{where}: unknown edge labels {bad}; expected {list(EDGE_LABELS)}")
+    origin = _need(d, "origin", where)
+    centre = tuple(float(v) for v in _need(d, "centre", where))
+    exits = [
+        Exit(str(e["id"]), tuple(float(v) for v in e["a"]), tuple(float(v) for v in e["b"]), e.get("to"))
+        for e in d.get("exits", [])
+    ]
+    return ASR(
+        id=int(_need(d, "id", where)),
+        created=float(_need(d, "created", where)),
+        origin=(float(origin[0]), float(origin[1]), float(origin[2])),
+        boundary=boundary,
+        edges=edges,
+        centre=centre,
+        centre_rule=_centre_rule(boundary, centre),
+        exits=exits,
+        duplicate_of=d.get("duplicate_of"),
+        scans=int(d.get("scans", 0)),
+    )
+
+
+def _centre_rule(boundary: np.ndarray, centre) -> str:
+    if len(boundary) < 3:
+        return "centroid"
+    c = shapely.Polygon(boundary).centroid
+    return (
+        "centroid" if c.is_empty or np.hypot(c.x - centre[0], c.y - centre[1]) < 1e-6 else "point_on_surface"
+    )
+
+
+def to_document(
+    asrs: list[ASR], links: list[Link], cycles: list[CycleRecord], robot: str = "pioneer"
+) -> dict[str, Any]:
+    """The ``asrmap/map/1`` dict of these records (ASRs in the order given: creation order)."""
+    return {
+        "schema": SCHEMA,
+        "robot": robot,
+        "asrs": [asr_to_dict(a) for a in asrs],
+        "links": [ln.to_dict() for ln in links],
+        "cycles": [c.to_dict() for c in cycles],
+    }
+
+
+def from_document(doc: dict[str, Any]) -> MapDocument:
+    """Read an ``asrmap/map/1`` dict into records; raises :class:`DocumentError` if it is not one."""
+    if not isinstance(doc, dict) or doc.get("schema") != SCHEMA:
+        got = doc.get("schema") if isinstance(doc, dict) else type(doc).__name__
+        raise DocumentError(f"not a map document: schema {got!r}, expected {SCHEMA!r}")
+    asrs = [asr_from_dict(a) for a in doc.get("asrs", [])]
+    ids = {a.id for a in asrs}
+    links = []
+    for ln in doc.get("links", []):
+        link = Link(
+            int(ln["from"]), str(ln["exit"]), int(ln["to"]), ln.get("via"), bool(ln.get("oneway", False))
+        )
+        if link.src not in ids or link.dst not in ids:
+            raise DocumentError(f"link {ln}: names an ASR the document does not hold")
+        links.append(link)
+    cycles = [
+        CycleRecord(
+            float(c["time"]),
+            int(c["asr"]),
+            int(c["matches"]),
+            bool(c["accepted"]),
+            float(c["iou"]),
+            str(c["reason"]),
+        )
+        for c in doc.get("cycles", [])
+    ]
+    return MapDocument(str(doc.get("robot", "pioneer")), asrs, links, cycles)
+
+
+def document_of(gm: GlobalMap, robot: str = "pioneer") -> dict[str, Any]:
+    """The document of a whole global map (ASRs in creation order, exits' ``to`` from the topology)."""
+    gm.sync_exits()
+    asrs = sorted(gm.asrs.values(), key=lambda a: (a.created, a.id))
+    return to_document(asrs, gm.topology.links, gm.cycles, robot)
+
+
+def load_globalmap(doc: dict[str, Any], params: CycleParams | None = None) -> GlobalMap:
+    """A :class:`GlobalMap` continuing the map of a document (see :meth:`GlobalMap.restore`)."""
+    md = from_document(doc)
+    gm = GlobalMap(params)
+    gm.restore(md.asrs, md.links, md.cycles)
+    return gm
