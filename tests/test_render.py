@@ -1,0 +1,43 @@
+"""SVG of a map document: well-formed, every ASR drawn in both panels, one-way and cycle links marked."""
+
+import xml.etree.ElementTree as ET
+
+from mapper.cycle_params import CycleParams
+from mapper.document import document_of
+from mapper.globalmap import GlobalMap
+from service.render import render_svg, write_svg
+from tests.synthetic_asrs import drive
+from tests.test_cycles import LOOP
+
+NS = {"svg": "http://www.w3.org/2000/svg"}
+
+
+def _doc():
+    gm = GlobalMap(CycleParams())
+    drive(gm, LOOP, per_step=(0.15, -0.1, 0.02))
+    return document_of(gm)
+
+
+def test_the_svg_is_well_formed_and_draws_every_asr_in_both_panels():
+    doc = _doc()
+    root = ET.fromstring(render_svg(doc).encode())
+    assert root.tag == "{http://www.w3.org/2000/svg}svg"
+    polygons = root.findall("svg:polygon", NS)
+    assert len(polygons) == len(doc["asrs"])
+    node_labels = [t.text for t in root.findall("svg:text", NS)]
+    for a in doc["asrs"]:
+        assert node_labels.count(str(a["id"])) == 2  # topological node + metric centre
+
+
+def test_one_way_links_carry_an_arrow_and_cycle_links_are_red():
+    root = ET.fromstring(render_svg(_doc()).encode())
+    lines = root.findall("svg:line", NS)
+    assert any(ln.get("marker-end") == "url(#arrow)" for ln in lines)
+    assert any(ln.get("stroke") == "#c0392b" and ln.get("stroke-width") == "2.4" for ln in lines)
+
+
+def test_an_empty_map_and_a_written_file_are_valid(tmp_path):
+    empty = {"schema": "asrmap/map/1", "robot": "r&d <1>", "asrs": [], "links": [], "cycles": []}
+    ET.fromstring(render_svg(empty).encode())
+    p = write_svg(tmp_path / "map.svg", _doc(), title="loop & <block>")
+    ET.parse(p)
