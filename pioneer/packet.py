@@ -1,0 +1,137 @@
+"""P2OS packet framing (spec p2os.md §1.1): ``FA FB N data[0..N-3] CHK_hi CHK_lo``.
+
+``N`` counts the data bytes plus the two checksum bytes. The checksum is the 16-bit sum of the data
+as big-endian byte pairs, an odd last byte XORed into the low byte, sent high byte first (the only
+big-endian integer of P2OS). Both directions use the same framing, so the driver (host side) and
+the emulator (robot side) share :func:`frame` and :class:`PacketReader`.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from functools import lru_cache
+
+SYNC = b"\xfa\xfb"
+MIN_COUNT = 3  # one data byte (the command or packet type) plus the checksum
+# The P2 manual: P2OS ignores packets whose byte count exceeds 200 (ROS-p2os refuses more than 198
+# bytes in total). ARIA accepts any count; a robot-side reader must not, a host-side one need not.
+MAX_COUNT = 200
+
+
+@lru_cache(maxsize=256)
+def _pairs(n: int) -> struct.Struct:
+    return struct.Struct(f">{n // 2}H")
+
+
+def checksum(data: bytes) -> int:
+    """The P2OS checksum of a packet's data bytes (the command/type byte through the last argument)."""
+    c = sum(_pairs(len(data)).unpack_from(data)) & 0xFFFF
+    if len(data) & 1:
+        c ^= data[-1]
+    return c
+
+
+def frame(data: bytes) -> bytes:
+    """The complete packet carrying ``data`` (at least the command/type byte, at most 198 bytes)."""
+    if not 1 <= len(data) <= MAX_COUNT - 2:
+        raise ValueError(f"a P2OS packet carries 1 to {MAX_COUNT - 2} data bytes, not {len(data)}")
+    c = checksum(data)
+    return b"%s%c%s%c%c" % (SYNC, len(data) + 2, data, c >> 8, c & 0xFF)
+
+
+@dataclass(frozen=True, slots=True)
+class Packet:
+    """One intact packet: ``data`` is everything between the byte count and the checksum."""
+
+    data: bytes
+
+    @property
+    def type(self) -> int:
+        """The first data byte: the command number (to the robot) or the packet type (from it)."""
+        return self.data[0]
+
+    @property
+    def payload(self) -> bytes:
+        return self.data[1:]
+
+    def to_bytes(self) -> bytes:
+        return frame(self.data)
+
+
+class PacketReader:
+    """Incremental framer: :meth:`feed` bytes as they arrive, get the intact packets back.
+
+    Resynchronises on the next ``FA FB`` after garbage (ARIA's ``"WMS2\\r"``, line noise, a packet
+    cut short). A header whose byte count is impossible (< 3 or > ``max_count``) or whose checksum
+    fails is dropped by skipping only its first byte, so an intact packet that the bad one seemed
+    to swallow is still found. Counters: ``packets_ok``, ``bad_checksums``, ``bad_counts``,
+    ``bytes_skipped`` (every byte not delivered inside an intact packet).
+    """
+
+    __slots__ = ("_buf", "bad_checksums", "bad_counts", "bytes_skipped", "max_count", "packets_ok")
+
+    def __init__(self, max_count: int = MAX_COUNT) -> None:
+        self._buf = bytearray()
+        self.max_count = max_count
+        self.packets_ok = 0
+        self.bad_checksums = 0
+        self.bad_counts = 0
+        self.bytes_skipped = 0
+
+    def feed(self, data: bytes) -> list[Packet]:
+        """Append ``data`` and return every packet completed by it, in order."""
+        buf = self._buf
+        buf += data
+        n = len(buf)
+        out: list[Packet] = []
+        i = 0
+        while True:
+            j = buf.find(SYNC, i)
+            if j < 0:
+                # A trailing 0xFA may be the first half of the next header.
+                keep = n - 1 if n > i and buf[n - 1] == 0xFA else n
+                self.bytes_skipped += keep - i
+                i = keep
+                break
+            self.bytes_skipped += j - i
+            i = j
+            if j + 3 > n:
+                break
+            count = buf[j + 2]
+            if count < MIN_COUNT or count > self.max_count:
+                self.bad_counts += 1
+                self.bytes_skipped += 1
+                i = j + 1
+                continue
+            end = j + 3 + count
+            if end > n:
+                break
+            body = bytes(buf[j + 3 : end - 2])
+            if checksum(body) != (buf[end - 2] << 8 | buf[end - 1]):
+                self.bad_checksums += 1
+                self.bytes_skipped += 1
+                i = j + 1
+                continue
+            out.append(Packet(body))
+            self.packets_ok += 1
+            i = end
+        del buf[:i]
+        return out
+
+    def clear(self) -> None:
+        """Forget a partly received packet (the port was flushed or reopened); counters stay."""
+        self._buf.clear()
+
+    @property
+    def pending(self) -> int:
+        """Bytes held while waiting for the rest of a packet."""
+        return len(self._buf)
+
+    def counters(self) -> dict[str, int]:
+        return {
+            "packets_ok": self.packets_ok,
+            "bad_checksums": self.bad_checksums,
+            "bad_counts": self.bad_counts,
+            "bytes_skipped": self.bytes_skipped,
+        }
