@@ -1,0 +1,262 @@
+"""Evaluation of a map against ground truth (shared/design/interfaces.md, "Evaluation against ground truth").
+
+Ground truth is a :class:`Track` of true robot poses (the corrected poses of a corrected CARMEN log of
+the same run). Between its samples the truth is carried by the replayed odometry's increments:
+``truth(t) = truth(t_k) ⊕ (odo(t_k)⁻¹ ⊕ odo(t))`` with t_k the last truth sample at or before t, so
+a sparse truth (a corrected scan every few seconds) still gives the pose at any scan.
+
+- An ASR's **true frame** is the true pose at its ``created`` time.
+- Two ASRs **truly overlap** when, in their true frames, each one's centre lies inside the other's
+  polygon.
+- A reported (accepted) cycle is a **true positive** when its two ASRs truly overlap.
+- A **revisit** is an ASR that truly overlaps an earlier ASR other than the one it was entered from;
+  it is **detected** when an accepted cycle links it, or one of the next two ASRs created, to that
+  earlier ASR or to a duplicate of it (or to the original it duplicates).
+- The ASR frames' error: RMS distance between the ASRs' global origins and their true positions
+  after the best rigid 2D alignment of the two (the global frame is arbitrary), and the RMS of the
+  relative heading error; for the realigned map and for the dead-reckoned one.
+
+ASRs created outside the truth's time span are left out of every figure (and counted).
+
+Corrected logs replayed on their own (``*-corrected.log.gz``): :func:`rebuild_corrected` turns their
+embedded ``ODOM`` increments back into drifting odometry (shared/data/SOURCES.md, "Raw odometry
+inside the corrected logs") and returns the FLASER poses as the truth.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import shapely
+
+from mapper.se2 import Pose, between, compose, interpolate, transform_points, wrap_array
+from mapper.types import Odometry, Scan
+from service.carmen import CarmenReader, LaserRecord, OdomRecord
+
+
+class Track:
+    """Poses (m, m, rad) by time (s), interpolated linearly (shortest turn) and held at the ends."""
+
+    def __init__(self, times: Iterable[float] = (), poses: Iterable[Pose] = ()):
+        pairs = sorted(zip(times, poses, strict=True), key=lambda p: p[0])
+        self.t = [float(t) for t, _ in pairs]
+        self.poses = [tuple(float(v) for v in p) for _, p in pairs]
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def append(self, t: float, pose: Pose) -> None:
+        if self.t and t < self.t[-1]:
+            i = bisect.bisect_right(self.t, t)
+            self.t.insert(i, t)
+            self.poses.insert(i, pose)
+        else:
+            self.t.append(t)
+            self.poses.append(pose)
+
+    def span(self) -> tuple[float, float]:
+        return (self.t[0], self.t[-1]) if self.t else (math.inf, -math.inf)
+
+    def at(self, t: float) -> Pose:
+        i = bisect.bisect_left(self.t, t)
+        if i <= 0:
+            return self.poses[0]
+        if i >= len(self.t):
+            return self.poses[-1]
+        t0, t1 = self.t[i - 1], self.t[i]
+        return interpolate(self.poses[i - 1], self.poses[i], 0.0 if t1 <= t0 else (t - t0) / (t1 - t0))
+
+
+def true_pose(truth: Track, odometry: Track, t: float) -> Pose:
+    """The true robot pose at time t: the last truth sample before t carried on by odometry."""
+    i = max(0, bisect.bisect_right(truth.t, t) - 1)
+    tk = truth.t[i]
+    return compose(truth.poses[i], between(odometry.at(tk), odometry.at(t)))
+
+
+def truth_from_log(path: str | Path) -> Track:
+    """The logged robot poses of every laser line (FLASER ``x y theta``, ROBOTLASER1 ``robot_*``)."""
+    tr = Track()
+    for rec in CarmenReader(path):
+        if isinstance(rec, LaserRecord):
+            tr.append(rec.t, rec.pose)
+    return tr
+
+
+def is_corrected(path: str | Path, probe: int = 50) -> bool:
+    """Whether a log is a corrected one with embedded raw increments: its laser lines are followed by
+    a reset ``ODOM`` at the same pose with timestamp 0 (SOURCES.md)."""
+    last: LaserRecord | None = None
+    seen = 0
+    for rec in CarmenReader(path):
+        if isinstance(rec, LaserRecord):
+            last = rec
+            seen += 1
+            if seen > probe:
+                return False
+        elif isinstance(rec, OdomRecord) and last is not None and rec.t == 0.0:
+            return bool(np.allclose(rec.pose, last.pose, atol=1e-4))
+    return False
+
+
+def rebuild_corrected(path: str | Path) -> tuple[list[Odometry | Scan], Track]:
+    """Drifting odometry rebuilt from a corrected log's ODOM increments, its scans, and its truth.
+
+    Each laser line k carries the corrected pose C_k; the last ``ODOM`` before line k+1 is
+    C_k ⊕ (raw increment), so the raw increment is C_k⁻¹ ⊕ O and the dead-reckoned pose
+    D_{k+1} = D_k ⊕ (C_k⁻¹ ⊕ O). D starts at C_0. Returns ([Odometry(t_k, D_k), Scan_k, ...], truth).
+    """
+    inputs: list[Odometry | Scan] = []
+    truth = Track()
+    corrected: Pose | None = None
+    dead: Pose | None = None
+    odom: Pose | None = None
+    for rec in CarmenReader(path):
+        if isinstance(rec, OdomRecord):
+            if rec.t != 0.0:  # timestamp 0: the reset line that follows each corrected scan
+                odom = rec.pose
+            continue
+        if not isinstance(rec, LaserRecord):
+            continue
+        if corrected is None:
+            dead = rec.pose
+        else:
+            dead = compose(dead, between(corrected, odom if odom is not None else corrected))
+        corrected, odom = rec.pose, None
+        truth.append(rec.t, rec.pose)
+        inputs.append(Odometry(rec.t, *dead))
+        inputs.append(rec.scan())
+    return inputs, truth
+
+
+@dataclass(frozen=True, slots=True)
+class Evaluation:
+    """Figures of one map against truth (see the module docstring); errors in m and rad."""
+
+    asrs: int
+    evaluated: int
+    cycles: int
+    true_positives: int
+    false_positives: int
+    revisits: int
+    detected: int
+    frame_error_before: float
+    frame_error_after: float
+    heading_error_before: float
+    heading_error_after: float
+    false_pairs: tuple[tuple[int, int], ...] = ()
+
+    @property
+    def precision(self) -> float:
+        return self.true_positives / self.cycles if self.cycles else math.nan
+
+    @property
+    def recall(self) -> float:
+        return self.detected / self.revisits if self.revisits else math.nan
+
+
+def _rigid_error(est: np.ndarray, true: np.ndarray) -> tuple[float, float]:
+    """RMS position error (m) after the best rigid 2D fit of est onto true, and RMS heading error (rad)."""
+    if len(est) < 2:
+        return 0.0, 0.0
+    pe, pt = est[:, :2], true[:, :2]
+    me, mt = pe.mean(axis=0), pt.mean(axis=0)
+    h = (pe - me).T @ (pt - mt)
+    th = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
+    c, s = math.cos(th), math.sin(th)
+    fitted = (pe - me) @ np.array([[c, s], [-s, c]]) + mt
+    pos = float(np.sqrt(np.mean(np.sum((fitted - pt) ** 2, axis=1))))
+    dth = wrap_array(est[:, 2] + th - true[:, 2])
+    dth = wrap_array(dth - math.atan2(np.mean(np.sin(dth)), np.mean(np.cos(dth))))
+    return pos, float(np.sqrt(np.mean(dth**2)))
+
+
+def evaluate(
+    doc: dict,
+    truth: Track,
+    odometry: Track,
+    entered_from: dict[int, int | None],
+    origins_before: dict[int, Pose] | None = None,
+) -> Evaluation:
+    """Score a map document (``asrmap/map/1``) against ``truth``.
+
+    ``odometry``: the odometry the mapper was given (odometry frame), to carry truth between its
+    samples; ``entered_from``: ASR id -> the ASR it was entered from; ``origins_before``: the
+    dead-reckoned origins to compare with the document's (realigned) ones.
+    """
+    t0, t1 = truth.span()
+    asrs = [a for a in doc["asrs"] if t0 <= a["created"] <= t1]
+    ids = [a["id"] for a in asrs]
+    order = {k: n for n, k in enumerate(ids)}
+    frames = {a["id"]: true_pose(truth, odometry, a["created"]) for a in asrs}
+    polys = {
+        a["id"]: shapely.Polygon(transform_points(frames[a["id"]], np.array(a["boundary"], dtype=float)))
+        for a in asrs
+    }
+    for k, g in polys.items():
+        if not g.is_valid:
+            polys[k] = g.buffer(0)
+    centres = {
+        a["id"]: shapely.Point(transform_points(frames[a["id"]], np.array(a["centre"], dtype=float))[0])
+        for a in asrs
+    }
+
+    def overlap(i: int, j: int) -> bool:
+        return polys[j].covers(centres[i]) and polys[i].covers(centres[j])
+
+    dup_of = {a["id"]: a["duplicate_of"] for a in doc["asrs"] if a.get("duplicate_of") is not None}
+
+    def same_place(j: int) -> set[int]:
+        out = {j} | {k for k, m in dup_of.items() if m == j}
+        while j in dup_of:
+            j = dup_of[j]
+            out.add(j)
+        return out
+
+    accepted = [
+        c for c in doc.get("cycles", []) if c["accepted"] and c["asr"] in order and c["matches"] in order
+    ]
+    tp = [c for c in accepted if overlap(c["asr"], c["matches"])]
+    fp = tuple((c["asr"], c["matches"]) for c in accepted if not overlap(c["asr"], c["matches"]))
+    links: dict[int, set[int]] = {}
+    for c in accepted:
+        links.setdefault(c["asr"], set()).add(c["matches"])
+        links.setdefault(c["matches"], set()).add(c["asr"])
+    revisits = detected = 0
+    tree = shapely.STRtree([polys[k] for k in ids])
+    for n, i in enumerate(ids):
+        earlier = {
+            ids[int(j)]
+            for j in tree.query(centres[i], predicate="intersects")
+            if order[ids[int(j)]] < n and ids[int(j)] != entered_from.get(i) and overlap(i, ids[int(j)])
+        }
+        if not earlier:
+            continue
+        revisits += 1
+        targets = set().union(*(same_place(j) for j in earlier))
+        if any(links.get(k, set()) & targets for k in ids[n : n + 3]):
+            detected += 1
+    est_after = np.array([doc["asrs"][[a["id"] for a in doc["asrs"]].index(k)]["origin"] for k in ids])
+    true = np.array([frames[k] for k in ids])
+    before = np.array([origins_before[k] for k in ids]) if origins_before else est_after
+    eb, hb = _rigid_error(before, true) if len(ids) else (0.0, 0.0)
+    ea, ha = _rigid_error(est_after, true) if len(ids) else (0.0, 0.0)
+    return Evaluation(
+        asrs=len(doc["asrs"]),
+        evaluated=len(ids),
+        cycles=len(accepted),
+        true_positives=len(tp),
+        false_positives=len(fp),
+        revisits=revisits,
+        detected=detected,
+        frame_error_before=eb,
+        frame_error_after=ea,
+        heading_error_before=hb,
+        heading_error_after=ha,
+        false_pairs=fp,
+    )
