@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import queue
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import zenoh
@@ -216,6 +218,44 @@ def format_update(u: Update) -> str:
         return f"{u.robot}  status {status_line(u.data)}"
     fields = " ".join(f"{k}={_fmt(v)}" for k, v in u.data.items() if k not in ("schema", "event"))
     return f"{u.robot}  {u.data.get('event', u.kind)} {fields}"
+
+
+class SvgWriter:
+    """Keeps a picture of each robot's map current, rewritten at most every ``period`` seconds.
+
+    A ``{robot}`` in ``path`` is replaced by the robot name (one file per robot); without it the
+    file shows the robot whose map changed last. Written to a temporary file and renamed, so a
+    viewer reloading the file never reads half a picture.
+    """
+
+    def __init__(self, path: str, period: float = 1.0):
+        self.path = path
+        self.period = period
+        self._due = 0.0
+
+    def target(self, robot: str) -> Path:
+        return Path(self.path.replace("{robot}", robot))
+
+    def update(self, mon: Monitor, now: float | None = None) -> list[Path]:
+        """Write the pictures of the robots whose map changed; returns the files written."""
+        from service.render import render_svg
+
+        now = time.monotonic() if now is None else now
+        if now < self._due:
+            return []
+        self._due = now + self.period
+        written = []
+        for view in mon.robots.values():
+            if not view.changed or view.doc is None:
+                continue
+            view.changed = False
+            out = self.target(view.name)
+            tmp = out.with_name(f".{out.name}.tmp")
+            title = f"{view.name}: {map_summary(view.doc)}"
+            tmp.write_text(render_svg(view.doc, title), encoding="utf-8")
+            os.replace(tmp, out)
+            written.append(out)
+        return written
 
 
 def discover(mon: Monitor, wait: float) -> list[Update]:

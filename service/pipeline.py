@@ -267,13 +267,12 @@ def mapper_scan(scan: Any):
 
 
 def pose_report(mapper: Any, t: float, odometry: Pose) -> dict[str, Any]:
-    """The ``asrmap/pose/1`` body: time (s), current ASR, pose in its frame and in the global frame."""
-    asr = pose = glob = None
-    locate = getattr(mapper, "localise", None) or getattr(mapper, "pose", None)
-    if callable(locate):
-        where = locate()
-        if where is not None:
-            asr, pose, glob = where
+    """The ``asrmap/pose/1`` body: ``t`` (s, the scan's time), ``asr`` (current ASR id), ``pose`` (m,
+    m, rad in that ASR's frame), ``global`` (in the global frame), ``odometry`` (odometry frame)."""
+    asr = getattr(mapper, "current", None)
+    pose = glob = None
+    if asr is not None:
+        pose, glob = mapper.pose, mapper.global_pose
     return {"t": t, "asr": asr, "pose": _round(pose), "global": _round(glob), "odometry": _round(odometry)}
 
 
@@ -394,8 +393,10 @@ def open_pioneer(cfg: Config):
 def open_laser(cfg: Config):
     import laser
 
+    # recover=False: the driver reports a lost link and stops; the Link reopens it (one policy, one
+    # place, and it also covers a port that vanished and came back under the same udev name).
     return laser.LMS2xx(cfg.laser.port, cfg.laser.baudrate, resolution=cfg.laser.resolution,
-                        fov=cfg.laser.fov, units=cfg.laser.units)
+                        fov=cfg.laser.fov, units=cfg.laser.units, recover=False)
 
 
 class Service:

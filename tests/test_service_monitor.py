@@ -93,3 +93,25 @@ def test_live_monitor_prints_events_and_exits_0_on_sigterm():
         finally:
             p.send_signal(signal.SIGTERM)
             assert p.wait(timeout=5) == 0
+
+
+SQUARE_DOC = {"schema": "asrmap/map/1", "robot": "r1", "asrs": [
+    {"id": i, "created": float(i), "origin": [2.0 * (i - 1), 0.0, 0.0],
+     "boundary": [[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]],
+     "edges": ["surface", "exit", "surface", "surface"], "centre": [0.0, 0.0],
+     "exits": [{"id": f"{i}/0", "a": [1.0, -0.5], "b": [1.0, 0.5], "to": i + 1 if i == 1 else None}],
+     "duplicate_of": None, "scans": 3} for i in (1, 2)],
+    "links": [{"from": 1, "exit": "1/0", "to": 2, "via": None, "oneway": False}], "cycles": []}
+
+
+def test_monitor_once_writes_an_svg_of_each_robot(tmp_path):
+    import xml.etree.ElementTree as ET
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    out = tmp_path / "map-{robot}.svg"
+    with Bus("r1", ZenohConfig(listen=(ep,)), lambda: SQUARE_DOC):
+        p = _cli("monitor", "--once", "--connect", ep, "--wait", "1", "--svg", str(out))
+        stdout, err = p.communicate(timeout=20)
+    assert stdout.splitlines()[-1] == f"wrote {tmp_path / 'map-r1.svg'}", err
+    root = ET.parse(tmp_path / "map-r1.svg").getroot()
+    assert root.tag.endswith("svg") and "r1: 2 ASRs, 1 links" in (tmp_path / "map-r1.svg").read_text()
