@@ -1,0 +1,641 @@
+"""Autonomous exploration (method.md §8): a planner over the mapper's ASRs and a velocity controller.
+
+**Planner** (:class:`Planner`, pure apart from its memory of what it already tried). Inside the
+current ASR it goes to each ``unknown`` region of the boundary in turn (nearest first) until the
+enclosure is complete; then it takes the current ASR's *largest unexplored exit* (depth first);
+when every exit of the current ASR is explored it *backtracks* along the topological map to the
+nearest ASR (fewest metres between centres in the global frame) with an unexplored exit; when none
+is left it is *done*. An exit is explored when it leads somewhere (``to`` is set, or a link starts
+from it), when crossing it failed, or, in a duplicate ASR (method.md §5.5), when the matched ASR
+has an explored exit at the same place in the global frame: the duplicate's space is known.
+An unknown region is a run of consecutive ``unknown`` boundary edges at least ``min_unknown`` long;
+it is looked at once, from the nearest point of the ASR shrunk by ``clearance``, then remembered
+(in the ASR's own frame, which never moves) so that regions that stay unknown (a max-range cut of a
+long hall, space behind furniture) do not hold exploration up.
+
+**Controller** (:class:`Explorer`): turn to the target, then drive, steering to the free heading
+nearest the target from the latest scan; a laser safety stop (no forward motion while a scan point
+in the robot's path is closer to the laser than ``stop_distance``); stuck detection (no progress
+towards the goal for ``stuck_time`` s) and recovery (back off or creep forward, turn to the most
+open side, give the goal up and plan again).
+
+Frames: targets and the robot pose are in the current ASR's frame (m, m, rad); scan points in the
+robot frame (x forward, y left); velocities out are ``v`` (m/s, forward) and ``w`` (rad/s,
+counter-clockwise), as P2OS VEL/RVEL take them after unit conversion.
+"""
+
+from __future__ import annotations
+
+import heapq
+import logging
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import shapely
+from shapely.ops import nearest_points
+
+from mapper.se2 import Pose, transform_points, wrap
+from mapper.types import ASR, Exit
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class ExploreParams:
+    """Exploration and control parameters (m, s, rad). Defaults fit a Pioneer 2DX with an LMS200."""
+
+    #: m. Targets stay this far inside the ASR boundary: the P2DX sweeps a 0.37 m circle turning on
+    #: the spot (rear corners at 0.301 m behind, 0.2125 m aside), plus margin for localisation.
+    clearance: float = 0.45
+    #: m. Unknown runs shorter than this are ignored: they cannot hide a gap the robot passes.
+    min_unknown: float = 0.5
+    #: m. An unknown run whose midpoint is this close to one already looked at is not visited again.
+    visit_radius: float = 1.0
+    #: m. An unknown region within this distance, in the laser's field of view, counts as seen.
+    look_distance: float = 2.0
+    #: m. A target is reached within this distance.
+    arrive_tol: float = 0.3
+    #: rad. Facing a direction within this counts as facing it.
+    face_tol: float = 0.3
+    #: m. Exits are approached from this far inside, on the exit's normal, then driven through ...
+    stage_distance: float = 0.8
+    #: m. ... to this far beyond its midpoint.
+    through_distance: float = 1.0
+    #: s. After reaching the far side, the mapper has this long to report the crossing.
+    crossing_grace: float = 3.0
+    #: m/s, rad/s. Speed limits: well inside the P2DX's 2.2 m/s / 500 °/s, slow enough for 5 Hz scans.
+    v_max: float = 0.4
+    w_max: float = 0.8
+    #: 1/s. Heading gain of the path follower.
+    k_heading: float = 1.5
+    #: rad. Heading errors above this are turned away on the spot before driving.
+    turn_in_place: float = 0.6
+    #: m. Steering looks this far ahead for a free heading.
+    lookahead: float = 1.0
+    #: m. Lateral margin added to the robot's half width when judging a heading free.
+    avoid_margin: float = 0.05
+    #: m. Safety stop: no forward motion while a surface in the robot's path is closer to the laser.
+    stop_distance: float = 0.3
+    #: m. Forward speed falls linearly to zero over this distance before the stop distance.
+    slow_zone: float = 0.5
+    #: s, m. Stuck: the distance to the goal has not shrunk by ``progress_min`` for ``stuck_time``.
+    stuck_time: float = 12.0
+    progress_min: float = 0.15
+    #: s. A goal not achieved in this time is given up (bounds exploration whatever happens).
+    goal_timeout: float = 120.0
+    #: m, m/s, rad. Recovery: move ``recovery_distance`` at ``recovery_speed``, then turn ``recovery_turn``.
+    recovery_distance: float = 0.25
+    recovery_speed: float = 0.15
+    recovery_turn: float = 1.2
+    #: m. Exits of a duplicate and of its matched ASR within this distance (global frame) are one exit.
+    duplicate_radius: float = 1.0
+    #: m, robot frame. Robot front (from the turning centre), half width, laser position.
+    front: float = 0.210
+    half_width: float = 0.2125
+    laser_x: float = 0.017
+    laser_y: float = 0.008
+
+
+# --- what the explorer reads ----------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class LinkRef:
+    """A topological link (``asrmap/map/1`` ``links``): crossing ``exit`` of ``src`` leads into ``dst``
+    through ``via``; both ways unless ``oneway``."""
+
+    src: int
+    exit: str
+    dst: int
+    via: str | None = None
+    oneway: bool = False
+
+
+@dataclass(frozen=True)
+class MapView:
+    """The mapper's state as the explorer needs it: the current ASR id (None before the first
+    scan), the robot pose in that ASR's frame, every ASR record by id, and the links."""
+
+    current: int | None
+    pose: Pose
+    asrs: Mapping[int, ASR]
+    links: Sequence[LinkRef] = ()
+
+    @classmethod
+    def from_document(cls, doc: dict[str, Any], current: int | None, pose: Pose) -> MapView:
+        """From an ``asrmap/map/1`` document (as ``Mapper.document()`` or the Zenoh map query give)."""
+        from mapper.document import from_document
+
+        md = from_document(doc)
+        return cls(current, pose, {a.id: a for a in md.asrs}, links_of(md.links))
+
+
+def links_of(links: Iterable[Any]) -> list[LinkRef]:
+    """:class:`LinkRef` from link objects (``src``/``exit``/``dst``/``via``/``oneway``) or document dicts."""
+    out = []
+    for ln in links:
+        if isinstance(ln, dict):
+            out.append(LinkRef(int(ln["from"]), str(ln["exit"]), int(ln["to"]), ln.get("via"),
+                               bool(ln.get("oneway", False))))
+        else:
+            out.append(LinkRef(int(ln.src), str(ln.exit), int(ln.dst), ln.via, bool(ln.oneway)))
+    return out
+
+
+# --- what the planner decides -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Goal:
+    """One step of exploration, in the frame of ASR ``asr``.
+
+    ``kind``: ``unknown`` (go to ``target``, then face ``look_at``), ``exit`` (an unexplored exit),
+    ``backtrack`` (a known exit on the way to ``path[-1]``), ``done`` or ``wait`` (no ASR yet).
+    For exits: ``target`` is the staging point inside, ``through`` the point beyond the exit.
+    """
+
+    kind: str
+    asr: int | None = None
+    target: tuple[float, float] | None = None
+    look_at: tuple[float, float] | None = None
+    exit: str | None = None
+    through: tuple[float, float] | None = None
+    path: tuple[int, ...] = ()
+
+    @property
+    def key(self) -> tuple:
+        return (self.kind, self.asr, self.exit, self.look_at)
+
+
+@dataclass
+class Memory:
+    """What the planner has tried: unknown regions looked at (per ASR, points in its frame) and
+    exits that could not be crossed (``(asr, exit id)``)."""
+
+    looked: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
+    failed_exits: set[tuple[int, str]] = field(default_factory=set)
+
+
+def unknown_runs(asr: ASR) -> list[tuple[np.ndarray, float]]:
+    """Maximal runs of consecutive ``unknown`` edges of the boundary: (points (K, 2), length m)."""
+    b = np.asarray(asr.boundary, dtype=float)
+    n = len(b)
+    unk = np.array([e == "unknown" for e in asr.edges], dtype=bool)
+    if n < 3 or not unk.any():
+        return []
+    if unk.all():
+        pts = np.vstack([b, b[:1]])
+        return [(pts, float(np.hypot(*np.diff(pts, axis=0).T).sum()))]
+    # Start the walk just after a non-unknown edge so no run is split across the wrap-around.
+    first = (int(np.flatnonzero(~unk)[0]) + 1) % n
+    runs, cur = [], []
+    for k in range(n):
+        i = (first + k) % n
+        if unk[i]:
+            if not cur:
+                cur.append(b[i])
+            cur.append(b[(i + 1) % n])
+        elif cur:
+            runs.append(np.array(cur))
+            cur = []
+    if cur:
+        runs.append(np.array(cur))
+    return [(r, float(np.hypot(*np.diff(r, axis=0).T).sum())) for r in runs]
+
+
+def _midpoint_along(pts: np.ndarray) -> tuple[float, float]:
+    """The point halfway along the polyline ``pts`` (m)."""
+    step = np.hypot(*np.diff(pts, axis=0).T)
+    total = step.sum()
+    if total <= 0.0:
+        return (float(pts[0, 0]), float(pts[0, 1]))
+    cum = np.concatenate([[0.0], np.cumsum(step)])
+    k = int(np.clip(np.searchsorted(cum, total / 2.0) - 1, 0, len(step) - 1))
+    f = (total / 2.0 - cum[k]) / step[k] if step[k] > 0 else 0.0
+    p = pts[k] + f * (pts[k + 1] - pts[k])
+    return (float(p[0]), float(p[1]))
+
+
+def _free_space(asr: ASR, clearance: float) -> shapely.Geometry:
+    poly = shapely.make_valid(asr.polygon)
+    return poly.buffer(-clearance)
+
+
+def _inside_point(free: shapely.Geometry, near: tuple[float, float], fallback: tuple[float, float]):
+    """The point of ``free`` nearest ``near`` (``fallback`` when there is no free space)."""
+    if free.is_empty:
+        return fallback
+    p = shapely.Point(near)
+    if free.covers(p):
+        return near
+    q = nearest_points(free, p)[0]
+    return (float(q.x), float(q.y))
+
+
+def exit_normal(asr: ASR, ex: Exit) -> np.ndarray:
+    """Unit normal of the exit pointing out of the ASR (ASR frame)."""
+    a, b = np.asarray(ex.a, float), np.asarray(ex.b, float)
+    d = b - a
+    n = np.array([d[1], -d[0]]) / max(float(np.hypot(*d)), 1e-9)
+    mid = (a + b) / 2.0
+    poly = asr.polygon
+    probe = 0.05
+    inside_plus = poly.contains(shapely.Point(mid + probe * n))
+    inside_minus = poly.contains(shapely.Point(mid - probe * n))
+    if inside_plus and not inside_minus:
+        return -n
+    if inside_minus and not inside_plus:
+        return n
+    # Ambiguous (a sliver at the exit): point away from the centre.
+    return n if float(np.dot(mid - np.asarray(asr.centre), n)) >= 0.0 else -n
+
+
+class Planner:
+    """Chooses the next :class:`Goal` from a :class:`MapView` (method.md §8); see the module docstring."""
+
+    def __init__(self, params: ExploreParams | None = None, memory: Memory | None = None) -> None:
+        self.p = params or ExploreParams()
+        self.memory = memory or Memory()
+
+    # -- bookkeeping ---------------------------------------------------------------------------
+    def looked_at(self, asr: int, point: tuple[float, float]) -> None:
+        self.memory.looked.setdefault(asr, []).append((float(point[0]), float(point[1])))
+
+    def failed(self, asr: int, exit_id: str) -> None:
+        self.memory.failed_exits.add((asr, exit_id))
+
+    # -- queries -------------------------------------------------------------------------------
+    def pending_unknown(self, asr: ASR) -> list[tuple[float, float]]:
+        """Midpoints (ASR frame) of the unknown runs of ``asr`` still to be looked at."""
+        seen = np.array(self.memory.looked.get(asr.id, []), dtype=float).reshape(-1, 2)
+        out = []
+        for pts, length in unknown_runs(asr):
+            if length < self.p.min_unknown:
+                continue
+            m = _midpoint_along(pts)
+            if len(seen) and np.hypot(*(seen - m).T).min() < self.p.visit_radius:
+                continue
+            out.append(m)
+        return out
+
+    def explored(self, view: MapView, asr: ASR, ex: Exit) -> bool:
+        """Whether exit ``ex`` of ``asr`` needs no visit (see the module docstring)."""
+        if ex.to is not None or (asr.id, ex.id) in self.memory.failed_exits:
+            return True
+        if (asr.id, ex.id) in _edges(view):
+            return True
+        orig = view.asrs.get(asr.duplicate_of) if asr.duplicate_of is not None else None
+        if orig is not None:
+            mid = transform_points(asr.origin, np.array([ex.midpoint]))[0]
+            for other in orig.exits:
+                if other.to is None and (orig.id, other.id) not in self.memory.failed_exits \
+                        and (orig.id, other.id) not in _edges(view):
+                    continue
+                omid = transform_points(orig.origin, np.array([other.midpoint]))[0]
+                if np.hypot(*(omid - mid)) < self.p.duplicate_radius:
+                    return True
+        return False
+
+    def unexplored_exits(self, view: MapView, asr: ASR) -> list[Exit]:
+        """Unexplored exits of ``asr``, widest first."""
+        return sorted((e for e in asr.exits if not self.explored(view, asr, e)), key=lambda e: -e.width)
+
+    # -- the decision --------------------------------------------------------------------------
+    def plan(self, view: MapView) -> Goal:
+        if view.current is None or view.current not in view.asrs:
+            return Goal("wait")
+        asr = view.asrs[view.current]
+        here = (view.pose[0], view.pose[1])
+        free = _free_space(asr, self.p.clearance)
+        pending = self.pending_unknown(asr)
+        if pending:
+            m = min(pending, key=lambda q: math.hypot(q[0] - here[0], q[1] - here[1]))
+            return Goal("unknown", asr.id, target=_inside_point(free, m, here), look_at=m)
+        exits = self.unexplored_exits(view, asr)
+        if exits:
+            return self._through(view, asr, exits[0], "exit", free, (asr.id,))
+        path = self.backtrack_path(view)
+        if path is None:
+            return Goal("done", asr.id)
+        hops, exit_id = path
+        ex = next(e for e in asr.exits if e.id == exit_id)
+        return self._through(view, asr, ex, "backtrack", free, hops)
+
+    def _through(self, view, asr: ASR, ex: Exit, kind: str, free, path) -> Goal:
+        n = exit_normal(asr, ex)
+        mid = np.asarray(ex.midpoint)
+        stage = tuple(float(v) for v in mid - self.p.stage_distance * n)
+        through = tuple(float(v) for v in mid + self.p.through_distance * n)
+        here = (view.pose[0], view.pose[1])
+        return Goal(kind, asr.id, target=_inside_point(free, stage, here), exit=ex.id,  # type: ignore[arg-type]
+                    through=through, path=tuple(path))  # type: ignore[arg-type]
+
+    def backtrack_path(self, view: MapView) -> tuple[tuple[int, ...], str] | None:
+        """Shortest route (metres between global centres) from the current ASR to the nearest ASR
+        with an unexplored exit: (ASR ids along it, the exit of the current ASR to take), or None."""
+        edges = _edges(view)
+        out: dict[int, list[tuple[str, int]]] = {}
+        for (a, e), b in edges.items():
+            if a in view.asrs and b in view.asrs and (a, e) not in self.memory.failed_exits \
+                    and any(x.id == e for x in view.asrs[a].exits):
+                out.setdefault(a, []).append((e, b))
+        start = view.current
+        dist = {start: 0.0}
+        prev: dict[int, tuple[int, str]] = {}
+        todo = [(0.0, start)]
+        done: set[int] = set()
+        while todo:
+            d, a = heapq.heappop(todo)
+            if a in done:
+                continue
+            done.add(a)
+            if a != start and self.unexplored_exits(view, view.asrs[a]):
+                hops = [a]
+                while hops[-1] != start:
+                    hops.append(prev[hops[-1]][0])
+                hops.reverse()
+                first_exit = prev[hops[1]][1]
+                return tuple(hops), first_exit
+            for e, b in out.get(a, ()):
+                nd = d + _centre_distance(view.asrs[a], view.asrs[b])
+                if nd < dist.get(b, math.inf):
+                    dist[b] = nd
+                    prev[b] = (a, e)
+                    heapq.heappush(todo, (nd, b))
+        return None
+
+
+def _centre_distance(a: ASR, b: ASR) -> float:
+    ca = transform_points(a.origin, np.array([a.centre]))[0]
+    cb = transform_points(b.origin, np.array([b.centre]))[0]
+    # A hop costs at least a little so that routes through many tiny ASRs are not free.
+    return float(np.hypot(*(ca - cb))) + 0.5
+
+
+def _edges(view: MapView) -> dict[tuple[int, str], int]:
+    """(ASR, exit id) -> destination ASR, from exit records and links (both directions unless one-way)."""
+    edges: dict[tuple[int, str], int] = {}
+    for a in view.asrs.values():
+        for e in a.exits:
+            if e.to is not None:
+                edges[(a.id, e.id)] = e.to
+    for ln in view.links:
+        edges.setdefault((ln.src, ln.exit), ln.dst)
+        if not ln.oneway and ln.via is not None:
+            edges.setdefault((ln.dst, ln.via), ln.src)
+    return edges
+
+
+# --- the controller ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """A velocity command: ``v`` m/s forward, ``w`` rad/s counter-clockwise; ``status`` says why."""
+
+    v: float
+    w: float
+    status: str
+    done: bool = False
+
+
+def scan_points(ranges: np.ndarray, angles: np.ndarray, max_range: float, p: ExploreParams) -> np.ndarray:
+    """Returns of a scan (ranges m, angles rad in the laser frame) as points (N, 2) in the robot frame."""
+    r = np.asarray(ranges, dtype=float)
+    ok = np.isfinite(r) & (r > 0.02) & (r < max_range)
+    a = np.asarray(angles, dtype=float)[ok]
+    return np.column_stack([p.laser_x + r[ok] * np.cos(a), p.laser_y + r[ok] * np.sin(a)])
+
+
+def free_distance(points: np.ndarray, headings: np.ndarray, p: ExploreParams, margin: float) -> np.ndarray:
+    """For each heading (rad, robot frame): how far (m) the robot's front can travel straight along
+    it before its body (half width + ``margin``) meets a scan point; ``inf`` when nothing is in the way."""
+    if not len(points):
+        return np.full(len(headings), np.inf)
+    c, s = np.cos(headings)[:, None], np.sin(headings)[:, None]
+    along = points[None, :, 0] * c + points[None, :, 1] * s
+    lateral = -points[None, :, 0] * s + points[None, :, 1] * c
+    blocking = (np.abs(lateral) < p.half_width + margin) & (along > 0.0)
+    return np.where(blocking, along - p.front, np.inf).min(axis=1)
+
+
+def safety_limit(points: np.ndarray, v: float, p: ExploreParams) -> float:
+    """The forward speed (m/s) allowed by the laser: 0 when a point in the robot's path is within
+    ``stop_distance`` of the laser, ramping up over ``slow_zone`` beyond it. Reverse motion is not
+    limited here (the laser cannot see behind)."""
+    if v <= 0.0 or not len(points):
+        return v
+    ahead = (np.abs(points[:, 1]) < p.half_width + p.avoid_margin) & (points[:, 0] > p.laser_x)
+    if not ahead.any():
+        return v
+    gap = float((points[ahead, 0] - p.laser_x).min())
+    return min(v, p.v_max * float(np.clip((gap - p.stop_distance) / p.slow_zone, 0.0, 1.0)))
+
+
+class Explorer:
+    """The exploration behaviour: call :meth:`step` with the mapper's view and the latest scan
+    points (robot frame) at time ``t`` (s); it returns the velocity command for now."""
+
+    def __init__(self, params: ExploreParams | None = None) -> None:
+        self.p = params or ExploreParams()
+        self.planner = Planner(self.p)
+        self.goal: Goal | None = None
+        self.phase = ""
+        self._goal_t = 0.0
+        self._best = math.inf
+        self._best_t = 0.0
+        self._reached_t: float | None = None
+        self._recovery: list[tuple[float, float, float]] = []  # (duration s, v, w) still to run
+        self._recovery_until = 0.0
+        self._recovery_cmd = (0.0, 0.0)
+        self.finished = False
+        self.counts = {"goals": 0, "unknown": 0, "exits": 0, "backtracks": 0, "stuck": 0, "failed": 0}
+
+    # -- goal life cycle ---------------------------------------------------------------------------
+    def _set_goal(self, goal: Goal, t: float) -> None:
+        self.goal = goal
+        self.phase = "approach"
+        self._goal_t = t
+        self._best = math.inf
+        self._best_t = t
+        self._reached_t = None
+        if goal.kind in ("unknown", "exit", "backtrack"):
+            self.counts["goals"] += 1
+            self.counts[{"unknown": "unknown", "exit": "exits", "backtrack": "backtracks"}[goal.kind]] += 1
+            log.debug("goal %s", goal)
+
+    def _give_up(self, why: str) -> None:
+        g = self.goal
+        if g is None:
+            return
+        self.counts["failed"] += 1
+        log.info("exploration: gave up %s %s in ASR %s (%s)", g.kind, g.exit or g.look_at, g.asr, why)
+        if g.kind == "unknown" and g.look_at is not None and g.asr is not None:
+            self.planner.looked_at(g.asr, g.look_at)
+        elif g.exit is not None and g.asr is not None:
+            self.planner.failed(g.asr, g.exit)
+        self.goal = None
+
+    def _still_valid(self, view: MapView) -> bool:
+        g = self.goal
+        if g is None or g.asr != view.current or g.asr not in view.asrs:
+            return False
+        asr = view.asrs[g.asr]
+        if g.kind == "unknown":
+            pending = self.planner.pending_unknown(asr)
+            return any(math.hypot(q[0] - g.look_at[0], q[1] - g.look_at[1]) < self.p.visit_radius
+                       for q in pending)
+        if g.kind in ("exit", "backtrack"):
+            ex = next((e for e in asr.exits if e.id == g.exit), None)
+            if ex is None:
+                return False
+            if g.kind == "exit":
+                # An unknown region appearing first takes precedence (enclosure before exits).
+                return not self.planner.explored(view, asr, ex) and not self.planner.pending_unknown(asr)
+            return True
+        return False
+
+    # -- the control step --------------------------------------------------------------------------
+    def step(self, view: MapView, points: np.ndarray, t: float) -> Command:
+        """The command for now. ``points``: latest scan returns (N, 2) in the robot frame (m)."""
+        if self._recovery or t < self._recovery_until:
+            return self._recover(points, t)
+        if not self._still_valid(view):
+            goal = self.planner.plan(view)
+            self._set_goal(goal, t)
+        g = self.goal
+        assert g is not None
+        if g.kind == "done":
+            self.finished = True
+            return Command(0.0, 0.0, "done", done=True)
+        if g.kind == "wait":
+            return Command(0.0, 0.0, "waiting for the first ASR")
+        self.finished = False
+        if t - self._goal_t > self.p.goal_timeout:
+            self._give_up("timeout")
+            return Command(0.0, 0.0, "goal timed out")
+        pose = view.pose
+        if g.kind == "unknown":
+            return self._unknown(g, pose, points, t)
+        return self._traverse(g, pose, points, t)
+
+    def _unknown(self, g: Goal, pose: Pose, points: np.ndarray, t: float) -> Command:
+        lx, ly = g.look_at  # type: ignore[misc]
+        d_look = math.hypot(lx - pose[0], ly - pose[1])
+        bearing = wrap(math.atan2(ly - pose[1], lx - pose[0]) - pose[2])
+        if d_look < self.p.look_distance and abs(bearing) < self.p.face_tol:
+            self.planner.looked_at(g.asr, g.look_at)  # type: ignore[arg-type]
+            self.goal = None
+            return Command(0.0, 0.0, "looked at an unknown region")
+        dist = math.hypot(g.target[0] - pose[0], g.target[1] - pose[1])  # type: ignore[index]
+        if dist < self.p.arrive_tol or self.phase == "face":
+            self.phase = "face"
+            if abs(bearing) < self.p.face_tol:
+                self.planner.looked_at(g.asr, g.look_at)  # type: ignore[arg-type]
+                self.goal = None
+                return Command(0.0, 0.0, "looked at an unknown region")
+            return self._turn(bearing, points, t, "facing an unknown region")
+        return self._drive_to(g.target, pose, points, t, "to an unknown region")  # type: ignore[arg-type]
+
+    def _traverse(self, g: Goal, pose: Pose, points: np.ndarray, t: float) -> Command:
+        what = "through exit" if g.kind == "exit" else "backtracking through exit"
+        if self.phase == "approach":
+            dist = math.hypot(g.target[0] - pose[0], g.target[1] - pose[1])  # type: ignore[index]
+            if dist < self.p.arrive_tol:
+                self.phase = "through"
+                self._best = math.inf
+                self._best_t = t
+            else:
+                return self._drive_to(g.target, pose, points, t, f"to exit {g.exit}")  # type: ignore[arg-type]
+        dist = math.hypot(g.through[0] - pose[0], g.through[1] - pose[1])  # type: ignore[index]
+        if dist < self.p.arrive_tol or self._reached_t is not None:
+            # On the far side but the mapper has not switched ASR (yet).
+            if self._reached_t is None:
+                self._reached_t = t
+            if t - self._reached_t > self.p.crossing_grace:
+                self._give_up("crossed but the mapper stayed in the ASR")
+            return Command(0.0, 0.0, f"waiting for the crossing of {g.exit}")
+        # Doorways leave ~0.24 m a side: steer with a tight margin so the jambs do not repel the robot.
+        return self._drive_to(g.through, pose, points, t, f"{what} {g.exit}", margin=0.02)  # type: ignore[arg-type]
+
+    def _turn(self, bearing: float, points: np.ndarray, t: float, status: str) -> Command:
+        self._progress(abs(bearing), t)
+        if self._stuck(t):
+            return self._start_recovery(points, t)
+        w = float(np.clip(self.p.k_heading * bearing, -self.p.w_max, self.p.w_max))
+        if abs(w) < 0.15:
+            w = math.copysign(0.15, bearing)  # below this P2OS barely turns (1 deg/s resolution)
+        return Command(0.0, w, status)
+
+    def _drive_to(self, target: tuple[float, float], pose: Pose, points: np.ndarray, t: float,
+                  status: str, margin: float | None = None) -> Command:
+        dx, dy = target[0] - pose[0], target[1] - pose[1]
+        dist = math.hypot(dx, dy)
+        self._progress(dist, t)
+        if self._stuck(t):
+            return self._start_recovery(points, t)
+        want = wrap(math.atan2(dy, dx) - pose[2])
+        heading = self._steer(want, dist, points, self.p.avoid_margin if margin is None else margin)
+        if heading is None:
+            # Nothing free towards the target: turn towards it and let stuck detection decide.
+            return Command(0.0, float(np.clip(self.p.k_heading * want, -self.p.w_max, self.p.w_max)),
+                           f"{status} (blocked)")
+        w = float(np.clip(self.p.k_heading * heading, -self.p.w_max, self.p.w_max))
+        if abs(heading) > self.p.turn_in_place:
+            if abs(w) < 0.15:
+                w = math.copysign(0.15, heading)
+            return Command(0.0, w, status)
+        v = self.p.v_max * math.cos(heading) * min(1.0, dist / 0.6 + 0.2)
+        v = safety_limit(points, v, self.p)
+        return Command(v, w, status if v > 0.0 else f"{status} (safety stop)")
+
+    def _steer(self, want: float, dist: float, points: np.ndarray, margin: float) -> float | None:
+        """The heading (rad, robot frame) nearest ``want`` along which the way is free for
+        min(dist, lookahead) m; None when no heading within 100° of ``want`` is."""
+        need = min(dist, self.p.lookahead)
+        cands = want + np.radians(np.concatenate([[0.0], np.repeat(np.arange(5, 101, 5), 2)
+                                                  * np.tile([1, -1], 20)]))
+        free = free_distance(points, cands, self.p, margin)
+        ok = free >= need
+        if not ok.any():
+            return None
+        return float(wrap(cands[int(np.argmax(ok))]))
+
+    # -- stuck detection and recovery ------------------------------------------------------------
+    def _progress(self, measure: float, t: float) -> None:
+        if measure < self._best - self.p.progress_min:
+            self._best = measure
+            self._best_t = t
+        elif self._best == math.inf:
+            self._best, self._best_t = measure, t
+
+    def _stuck(self, t: float) -> bool:
+        return t - self._best_t > self.p.stuck_time
+
+    def _start_recovery(self, points: np.ndarray, t: float) -> Command:
+        self.counts["stuck"] += 1
+        front = free_distance(points, np.array([0.0]), self.p, self.p.avoid_margin)[0] if len(points) else 0.0
+        back = 1.0 if front > self.p.recovery_distance + self.p.stop_distance else -1.0
+        # Turn towards the more open side, judged from the scan.
+        side = free_distance(points, np.radians([60.0, -60.0]), self.p, self.p.avoid_margin)
+        turn = 1.0 if side[0] >= side[1] else -1.0
+        self._recovery = [
+            (self.p.recovery_distance / self.p.recovery_speed, back * self.p.recovery_speed, 0.0),
+            (self.p.recovery_turn / (0.5 * self.p.w_max), 0.0, turn * 0.5 * self.p.w_max),
+        ]
+        self._recovery_until = t
+        self._give_up("stuck")
+        return self._recover(points, t)
+
+    def _recover(self, points: np.ndarray, t: float) -> Command:
+        if t >= self._recovery_until:
+            if not self._recovery:
+                return Command(0.0, 0.0, "recovered")
+            duration, v, w = self._recovery.pop(0)
+            self._recovery_until = t + duration
+            self._recovery_cmd = (v, w)
+        v, w = self._recovery_cmd
+        return Command(safety_limit(points, v, self.p), w, "recovering")

@@ -1,0 +1,235 @@
+"""Exploration (method.md §8) on constructed ASRs, and the controller's safety stop and recovery."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mapper.types import ASR, Exit
+from service.explore import (
+    ExploreParams,
+    Explorer,
+    LinkRef,
+    MapView,
+    Planner,
+    free_distance,
+    safety_limit,
+    scan_points,
+    unknown_runs,
+)
+from service.sim.physics import Body
+from service.sim.raycast import RayCaster
+from service.sim.world import parse_world
+
+P = ExploreParams()
+EAST_EXIT = ("surface", "exit", "surface", "surface")
+
+
+def room(asr_id, x0, y0, x1, y1, edges=("surface",) * 4, exits=(), origin=(0.0, 0.0, 0.0), dup=None):
+    """A box ASR [x0, x1] x [y0, y1] in its own frame; ``edges`` label S, E, N, W."""
+    b = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=float)
+    return ASR(asr_id, float(asr_id), origin, b, list(edges), ((x0 + x1) / 2, (y0 + y1) / 2),
+               exits=list(exits), duplicate_of=dup)
+
+
+def door(asr_id, n, a, b, to=None):
+    return Exit(f"{asr_id}/{n}", a, b, to)
+
+
+def view(asrs, current, pose=(1.0, 1.0, 0.0), links=()):
+    return MapView(current, pose, {a.id: a for a in asrs}, list(links))
+
+
+def test_unknown_runs_join_consecutive_unknown_edges_across_the_wrap():
+    a = room(1, 0, 0, 4, 3, edges=("unknown", "surface", "surface", "unknown"))
+    runs = unknown_runs(a)
+    assert len(runs) == 1 and runs[0][1] == pytest.approx(7.0)
+    assert np.allclose(runs[0][0], [[0, 3], [0, 0], [4, 0]])
+
+
+def test_a_room_with_an_unknown_edge_sends_the_robot_there():
+    a = room(1, 0, 0, 6, 4, edges=("surface", "unknown", "surface", "surface"))
+    g = Planner().plan(view([a], 1))
+    assert g.kind == "unknown" and g.look_at == (6.0, 2.0)
+    # The target is inside, the clearance away from the boundary, nearest the unknown edge.
+    assert g.target == pytest.approx((6.0 - P.clearance, 2.0))
+    cmd = Explorer().step(view([a], 1, pose=(1.0, 2.0, 0.0)), np.zeros((0, 2)), 0.0)
+    assert cmd.v > 0.0 and abs(cmd.w) < 1e-9
+
+
+def test_short_unknown_runs_and_ones_already_looked_at_are_skipped():
+    a = room(1, 0, 0, 6, 0.4, edges=("surface", "unknown", "surface", "surface"))  # 0.4 m: too short
+    assert Planner().plan(view([a], 1)).kind == "done"
+    b = room(2, 0, 0, 6, 4, edges=("surface", "unknown", "surface", "surface"))
+    planner = Planner()
+    planner.looked_at(2, (6.0, 2.2))
+    assert planner.plan(view([b], 2)).kind == "done"
+
+
+def test_the_enclosure_comes_before_the_exits():
+    edges = ("surface", "exit", "surface", "unknown")
+    a = room(1, 0, 0, 6, 4, edges=edges, exits=[door(1, 0, (6, 1), (6, 2))])
+    assert Planner().plan(view([a], 1)).kind == "unknown"
+
+
+def test_of_two_exits_one_explored_it_picks_the_other():
+    exits = [door(1, 0, (6, 1), (6, 3), to=2), door(1, 1, (2, 4), (3, 4))]
+    a = room(1, 0, 0, 6, 4, edges=("surface", "exit", "exit", "surface"), exits=exits)
+    g = Planner().plan(view([a, room(2, 0, 0, 3, 3)], 1))
+    assert g.kind == "exit" and g.exit == "1/1"
+    # Staged on the exit's inward normal, driven through to beyond it.
+    assert g.target == pytest.approx((2.5, 4 - P.stage_distance))
+    assert g.through == pytest.approx((2.5, 4 + P.through_distance))
+
+
+def test_the_largest_unexplored_exit_goes_first():
+    exits = [door(1, 0, (6, 1), (6, 2)), door(1, 1, (1, 4), (3, 4))]
+    a = room(1, 0, 0, 6, 4, edges=("surface", "exit", "exit", "surface"), exits=exits)
+    assert Planner().plan(view([a], 1)).exit == "1/1"
+
+
+def test_an_exit_named_by_a_link_is_explored():
+    a = room(1, 0, 0, 6, 4, edges=EAST_EXIT, exits=[door(1, 0, (6, 1), (6, 3))])
+    b = room(2, 0, 0, 3, 3, exits=[door(2, 0, (0, 1), (0, 2))])
+    links = [LinkRef(2, "2/0", 1, "1/0")]  # two-way: 1/0 leads back to 2
+    assert Planner().plan(view([a, b], 1, links=links)).kind == "done"
+
+
+def test_when_all_exits_are_explored_it_backtracks_to_the_nearest_asr_with_one_left():
+    # 1 -- 2 -- 3 in a row; 1 has an unexplored exit; the robot is in 3, whose exits are explored.
+    a1 = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3), to=2), door(1, 1, (0, 1), (0, 3))])
+    a2 = room(2, 0, 0, 4, 4, origin=(4.0, 0.0, 0.0),
+              exits=[door(2, 0, (0, 1), (0, 3), to=1), door(2, 1, (4, 1), (4, 3), to=3)])
+    a3 = room(3, 0, 0, 4, 4, origin=(8.0, 0.0, 0.0), exits=[door(3, 0, (0, 1), (0, 3), to=2)])
+    g = Planner().plan(view([a1, a2, a3], 3, pose=(2.0, 2.0, 0.0)))
+    assert g.kind == "backtrack" and g.exit == "3/0" and g.path == (3, 2, 1)
+    assert g.through == pytest.approx((-P.through_distance, 2.0))
+
+
+def test_backtracking_follows_links_as_well_as_exit_records():
+    a1 = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3)), door(1, 1, (0, 1), (0, 3))])
+    a2 = room(2, 0, 0, 4, 4, origin=(4.0, 0.0, 0.0), exits=[door(2, 0, (0, 1), (0, 3))])
+    links = [LinkRef(1, "1/0", 2, "2/0")]
+    g = Planner().plan(view([a1, a2], 2, links=links))
+    assert g.kind == "backtrack" and g.exit == "2/0" and g.path == (2, 1)
+
+
+def test_a_one_way_link_says_nothing_about_the_way_back():
+    a1 = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3)), door(1, 1, (0, 1), (0, 3))])
+    a2 = room(2, 0, 0, 4, 4, origin=(4.0, 0.0, 0.0), exits=[door(2, 0, (0, 1), (0, 3))])
+    links = [LinkRef(1, "1/0", 2, "2/0", oneway=True)]
+    g = Planner().plan(view([a1, a2], 2, links=links))
+    assert g.kind == "exit" and g.exit == "2/0"  # unexplored from this side, not a way back
+
+
+def test_nothing_left_is_done_and_the_robot_stands_still():
+    a = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3), to=2)])
+    b = room(2, 0, 0, 4, 4, origin=(4.0, 0.0, 0.0), exits=[door(2, 0, (0, 1), (0, 3), to=1)])
+    assert Planner().plan(view([a, b], 1)).kind == "done"
+    cmd = Explorer().step(view([a, b], 1), np.zeros((0, 2)), 0.0)
+    assert cmd.done and cmd.v == 0.0 and cmd.w == 0.0
+
+
+def test_no_asr_yet_waits():
+    assert Explorer().step(MapView(None, (0, 0, 0), {}), np.zeros((0, 2)), 0.0).status.startswith("waiting")
+
+
+def test_a_failed_exit_is_not_tried_again():
+    a = room(1, 0, 0, 6, 4, edges=EAST_EXIT, exits=[door(1, 0, (6, 1), (6, 3))])
+    planner = Planner()
+    planner.failed(1, "1/0")
+    assert planner.plan(view([a], 1)).kind == "done"
+
+
+def test_a_duplicate_does_not_re_explore_exits_its_original_explored():
+    orig = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3), to=2)])
+    # The duplicate: the same room seen from a frame 0.3 m off (drift), its exit not crossed yet.
+    dup = room(5, 0, 0, 4, 4, origin=(0.3, 0.1, 0.0), dup=1, exits=[door(5, 0, (3.7, 0.9), (3.7, 2.9))])
+    assert Planner().plan(view([orig, dup, room(2, 0, 0, 1, 1)], 5)).kind == "done"
+
+
+# --- safety and steering on synthetic scans ---------------------------------------------------------
+
+
+def wall_points(distance_from_laser, y_from=-1.0, y_to=1.0):
+    y = np.linspace(y_from, y_to, 41)
+    return np.column_stack([np.full_like(y, P.laser_x + distance_from_laser), y])
+
+
+def test_safety_stop_within_the_stop_distance_of_the_laser():
+    assert safety_limit(wall_points(0.25), 0.4, P) == 0.0
+    assert safety_limit(wall_points(P.stop_distance), 0.4, P) == 0.0
+    assert safety_limit(wall_points(2.0), 0.4, P) == 0.4
+    # Slows down in between.
+    assert 0.0 < safety_limit(wall_points(P.stop_distance + 0.2), 0.4, P) < 0.4
+
+
+def test_safety_stop_ignores_surfaces_beside_the_path_and_reverse_motion():
+    beside = wall_points(0.1, y_from=0.5, y_to=1.0)
+    assert safety_limit(beside, 0.4, P) == 0.4
+    assert safety_limit(wall_points(0.1), -0.1, P) == -0.1
+
+
+def test_the_controller_never_drives_forward_into_a_close_surface():
+    a = room(1, -5, -5, 5, 5, edges=("surface", "unknown", "surface", "surface"))
+    cmd = Explorer().step(view([a], 1, pose=(0.0, 0.0, 0.0)), wall_points(0.2, -3, 3), 0.0)
+    assert cmd.v == 0.0
+
+
+def test_scan_points_and_free_distance():
+    pts = scan_points(np.array([2.0, 8.191, 1.0]), np.radians([0.0, 45.0, 90.0]), 8.191, P)
+    assert np.allclose(pts, [[P.laser_x + 2.0, P.laser_y], [P.laser_x, P.laser_y + 1.0]])
+    free = free_distance(wall_points(2.0), np.array([0.0, math.pi / 2]), P, 0.0)
+    assert free[0] == pytest.approx(P.laser_x + 2.0 - P.front) and free[1] == np.inf
+
+
+def test_steers_around_an_obstacle_in_the_way():
+    a = room(1, -5, -5, 5, 5, edges=("surface", "unknown", "surface", "surface"))
+    post = np.array([[0.8, y] for y in np.linspace(-0.3, 0.3, 7)])  # a post 0.8 m straight ahead
+    cmd = Explorer().step(view([a], 1, pose=(0.0, 0.0, 0.0)), post, 0.0)
+    assert cmd.w != 0.0  # turns off the direct line to a free heading
+
+
+def test_no_progress_for_the_stuck_time_triggers_recovery_and_gives_the_goal_up():
+    a = room(1, -5, -5, 5, 5, edges=("surface", "unknown", "surface", "surface"))
+    ex = Explorer()
+    v = view([a], 1, pose=(0.0, 0.0, 0.0))
+    pts = wall_points(3.0, -3, 3)
+    statuses = [ex.step(v, pts, t).status for t in np.arange(0.0, P.stuck_time + 2.0, 0.5)]
+    assert "recovering" in statuses and ex.counts["stuck"] == 1
+    assert ex.planner.memory.looked[1]  # the unknown region was given up
+    # After the recovery motions the goal is replanned: nothing else left.
+    t = P.stuck_time + 2.0
+    while ex.step(v, pts, t).status == "recovering":
+        t += 0.5
+    assert ex.step(v, pts, t + 0.5).done
+
+
+# --- closed loop: the controller drives a simulated body through a doorway ----------------------
+
+
+def test_drives_through_a_doorway_without_touching_it():
+    world = parse_world({
+        "schema": "asrmap/world/1", "start": [1.5, 1.0, 0.0],
+        "walls": [{"from": [4, 0], "to": [4, 4], "doors": [{"at": 2.5, "width": 0.9}]}],
+        "loops": [[[0, 0], [8, 0], [8, 4], [0, 4]]],
+    })
+    # The room left of the wall as the mapper would see it, in a frame equal to the world's.
+    boundary = np.array([[0, 0], [4, 0], [4, 2.05], [4, 2.95], [4, 4], [0, 4.0]])
+    edges = ["surface", "surface", "exit", "surface", "surface", "surface"]
+    asr = ASR(1, 0.0, (0, 0, 0), boundary, edges, (2.0, 2.0), exits=[door(1, 0, (4.0, 2.05), (4.0, 2.95))])
+    body = Body(world)
+    rc = RayCaster(world, sigma=0.005)
+    ex = Explorer()
+    angles = np.radians(np.arange(-90.0, 90.5, 1.0))
+    dt, t = 0.1, 0.0
+    while t < 60.0 and body.pose[0] < 4.5:
+        pts = scan_points(rc.scan(body.pose, angles), angles, rc.max_range, P)
+        cmd = ex.step(MapView(1, body.pose, {1: asr}), pts, t)
+        x, y, th = body.pose
+        body.move((x + cmd.v * dt * math.cos(th), y + cmd.v * dt * math.sin(th), th + cmd.w * dt), t)
+        t += dt
+    assert body.pose[0] > 4.5 and abs(body.pose[1] - 2.5) < 0.25
+    assert not body.contacts
