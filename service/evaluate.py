@@ -16,7 +16,8 @@ a sparse truth (a corrected scan every few seconds) still gives the pose at any 
   after the best rigid 2D alignment of the two (the global frame is arbitrary), and the RMS of the
   relative heading error; for the realigned map and for the dead-reckoned one.
 
-ASRs created outside the truth's time span are left out of every figure (and counted).
+ASRs created more than ``margin`` seconds (default 60 s) outside the truth's time span are left out
+of every figure (and counted): odometry carries the truth well over seconds, not over minutes.
 
 Corrected logs replayed on their own (``*-corrected.log.gz``): :func:`rebuild_corrected` turns their
 embedded ``ODOM`` increments back into drifting odometry (shared/data/SOURCES.md, "Raw odometry
@@ -182,6 +183,7 @@ def evaluate(
     odometry: Track,
     entered_from: dict[int, int | None],
     origins_before: dict[int, Pose] | None = None,
+    margin: float = 60.0,
 ) -> Evaluation:
     """Score a map document (``asrmap/map/1``) against ``truth``.
 
@@ -190,7 +192,7 @@ def evaluate(
     dead-reckoned origins to compare with the document's (realigned) ones.
     """
     t0, t1 = truth.span()
-    asrs = [a for a in doc["asrs"] if t0 <= a["created"] <= t1]
+    asrs = [a for a in doc["asrs"] if t0 - margin <= a["created"] <= t1 + margin]
     ids = [a["id"] for a in asrs]
     order = {k: n for n, k in enumerate(ids)}
     frames = {a["id"]: true_pose(truth, odometry, a["created"]) for a in asrs}
