@@ -41,3 +41,26 @@ def test_an_empty_map_and_a_written_file_are_valid(tmp_path):
     ET.fromstring(render_svg(empty).encode())
     p = write_svg(tmp_path / "map.svg", _doc(), title="loop & <block>")
     ET.parse(p)
+
+
+def test_asrmap_render_writes_the_picture_of_a_saved_map(tmp_path, capsys):
+    import json
+
+    from service.cli import main
+
+    src = tmp_path / "map.json"
+    src.write_text(json.dumps(_doc()))
+    out = tmp_path / "map.svg"
+    assert main(["render", str(src), "--svg", str(out)]) == 0
+    ET.parse(out)
+    assert "6 ASRs" in capsys.readouterr().out
+
+
+def test_asrmap_render_refuses_a_file_that_is_not_a_map_in_one_line(tmp_path, capsys):
+    from service.cli import main
+
+    src = tmp_path / "events.json"
+    src.write_text('{"schema": "asrmap/event/1"}')
+    assert main(["render", str(src), "--svg", str(tmp_path / "x.svg")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "asrmap/map/1" in err[0]
