@@ -94,7 +94,7 @@ class PioneerEmulator:
         self.state = "waiting"
         self.sonar_on = True  # P2OS fires its sonars from OPEN on (ROS-p2os turns them off at once)
         self.encoder_stream = False
-        self.counters: dict = {
+        self._counters: dict = {
             "packets": 0,
             "sips_sent": 0,
             "sessions": 0,
@@ -179,6 +179,14 @@ class PioneerEmulator:
             if pressed:
                 self._e_stop()
 
+    @property
+    def counters(self) -> dict:
+        """Packets, SIPs sent, sessions, watchdog trips, unknown commands, ``commands`` by name, and
+        the framing counts: ``bad_checksums``, ``bad_counts``, ``garbage_bytes``."""
+        r = self._reader
+        return {**self._counters, "bad_checksums": r.bad_checksums, "bad_counts": r.bad_counts,
+                "garbage_bytes": r.bytes_skipped}
+
     def commands_seen(self) -> list[str]:
         """Names of the client commands received so far, in order (context-dependent for 0-2)."""
         return [name for _, name, _ in self.received]
@@ -216,19 +224,19 @@ class PioneerEmulator:
             if exc.errno not in (errno.EAGAIN, errno.EIO):
                 raise
             n = 0
-        self.counters["bytes_lost"] += len(data) - n
+        self._counters["bytes_lost"] += len(data) - n
 
     def _tick(self, now: float) -> None:
         if (self.state == "open" and not self._watchdog_tripped and now - self._last_client > self.watchdog):
             self._watchdog_tripped = True
-            self.counters["watchdog_trips"] += 1
+            self._counters["watchdog_trips"] += 1
             log.info("emulator: no client packet for %.1f s: watchdog stops the wheels", self.watchdog)
             self.body.stop()
         self.body.step(now - self._last_step)
         self._last_step = now
         if self.state == "open":
             self._write(frame(encode_sip(self.sip())))
-            self.counters["sips_sent"] += 1
+            self._counters["sips_sent"] += 1
             if self.encoder_stream:
                 b, conv = self.body, self.params.dist_conv
                 enc = EncoderCounts(round(b.left_travel * 1000 / conv), round(b.right_travel * 1000 / conv))
@@ -297,7 +305,7 @@ class PioneerEmulator:
 
     # ---- what the client says --------------------------------------------------------------------
     def _handle(self, pkt: Packet, now: float) -> None:
-        self.counters["packets"] += 1
+        self._counters["packets"] += 1
         cmd = parse_command(pkt)
         if self.state != "open":
             name = self._handshake(cmd)
@@ -305,7 +313,7 @@ class PioneerEmulator:
             self._last_client = now
             self._watchdog_tripped = False
             name = self._command(cmd)
-        self.counters["commands"][name] += 1
+        self._counters["commands"][name] += 1
         self.received.append((now, name, cmd.value))
 
     def _handshake(self, cmd: CommandPacket) -> str:
@@ -325,12 +333,12 @@ class PioneerEmulator:
         if c == 1 and state == "sync2":
             self._open()
             return "OPEN"
-        self.counters["ignored_before_open"] += 1
+        self._counters["ignored_before_open"] += 1
         return _SYNC_NAMES.get(c) or (Command(c).name if c in _KNOWN else f"unknown({c})")
 
     def _open(self) -> None:
         self.state = "open"
-        self.counters["sessions"] += 1
+        self._counters["sessions"] += 1
         self.sonar_on = True
         self._last_client = time.monotonic()
         self._watchdog_tripped = False
@@ -354,7 +362,7 @@ class PioneerEmulator:
                 self._close()
             return _OPEN_NAMES[c]
         if c not in _KNOWN:
-            self.counters["unknown_commands"] += 1
+            self._counters["unknown_commands"] += 1
             log.debug("emulator: unknown command %d ignored", c)
             return f"unknown({c})"
         name = Command(c).name

@@ -155,19 +155,21 @@ class DiffDrive:
             self.w_cmd = 0.0
 
     # --- motion ---------------------------------------------------------------------------------
-    def _rotation_target(self) -> float:
+    def _rotation_target(self, dt: float) -> float:
         if self.heading_target is None:
             return self.w_cmd
         err = normalize_angle(self.heading_target - self.odometry_pose[2])
-        # Slow down early enough to stop on the heading: w² = 2·decel·err.
-        w = math.copysign(math.sqrt(2 * self.rot_decel * abs(err)), err)
+        # Slow down early enough to stop on the heading (w² = 2·decel·err, err counted from where
+        # this step at the present speed will leave the robot), and never turn past it in one step.
+        ahead = max(0.0, abs(err) - abs(self.w) * dt)
+        w = math.copysign(min(math.sqrt(2 * self.rot_decel * ahead), abs(err) / dt), err)
         return max(-self.max_w, min(self.max_w, w))
 
     def step(self, dt: float) -> None:
         """Advance ``dt`` seconds: velocities toward their setpoints, then the poses."""
         if dt <= 0:
             return
-        v_target, w_target = (self.v_cmd, self._rotation_target()) if self.motors_enabled else (0.0, 0.0)
+        v_target, w_target = (self.v_cmd, self._rotation_target(dt)) if self.motors_enabled else (0.0, 0.0)
         self.v = _toward(self.v, v_target, self.accel, self.decel, dt)
         self.w = _toward(self.w, w_target, self.rot_accel, self.rot_decel, dt)
         old = self.true_pose
@@ -177,9 +179,8 @@ class DiffDrive:
         if self.motion_hook is not None and (ds or dth):
             allowed = self.motion_hook(old, wished) or old
         blocked = allowed != wished
+        # Blocked wheels do not turn (the encoders see no motion) while the motors keep pushing.
         self.left_stall = self.right_stall = blocked
-        if blocked:  # stalled wheels do not turn: the motors stop until the way is free again
-            self.v = self.w = 0.0
         # What the wheels actually did (the projection of the allowed motion on the mid heading).
         dth_true = normalize_angle(allowed[2] - old[2])
         mid = old[2] + dth_true / 2.0
