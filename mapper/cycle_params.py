@@ -61,6 +61,15 @@ class CycleParams:
     verify_max_rotation: float = 0.5
     """rad. Largest rotation ICP may apply (same reason as ``verify_max_correction``)."""
 
+    verify_max_violation: float = 0.05
+    """Largest fraction of either ASR's surface points that may lie inside the other's free space
+    after alignment. Two views of one place never see a wall where the other saw through; two
+    similar but different places (or a wrong alignment) do."""
+
+    verify_free_space_margin: float = 0.3
+    """m. How deep inside the other polygon a surface point must lie to count as a violation:
+    above alignment and simplification error, below a door jamb's depth."""
+
     sample_spacing: float = 0.05
     """m. Spacing of the points sampled along surface edges for ICP."""
 

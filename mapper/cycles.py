@@ -142,6 +142,20 @@ class Alignment:
     rms: float
     inliers: float
     shift: float
+    violation: float = 0.0
+    """Fraction of surface points that, after the alignment, lie inside the other ASR's free space
+    (deeper than a margin into its polygon): walls where the other place has none. Set by the caller."""
+
+
+def free_space_violation(points: np.ndarray, polygon: shapely.Geometry, margin: float) -> float:
+    """Fraction of ``points`` (N, 2) lying more than ``margin`` (m) inside ``polygon``: surfaces seen in
+    a space the polygon says is free. 0 for no points or an empty polygon."""
+    if len(points) == 0 or polygon.is_empty:
+        return 0.0
+    inner = polygon.buffer(-margin)
+    if inner.is_empty:
+        return 0.0
+    return float(np.mean(shapely.contains_xy(inner, points[:, 0], points[:, 1])))
 
 
 def align_points(

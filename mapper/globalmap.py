@@ -27,6 +27,7 @@ drifting map the paper accepts), so that evaluation can compare both against gro
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -38,6 +39,7 @@ from mapper.cycles import (
     Alignment,
     SpatialIndex,
     align_points,
+    free_space_violation,
     global_centre,
     global_polygon,
     iou,
@@ -92,6 +94,8 @@ class GlobalMap:
         self._reported: set[tuple[int, int, str]] = set()
         self._odometry_edges: list[Edge] = []
         self._loop_edges: list[Edge] = []
+        self.alignments: dict[tuple[int, int], Alignment | None] = {}
+        """Surface alignment of every verified pair (asr, match), for diagnosis."""
 
     # -- the mapper's calls -------------------------------------------------------------------
     def add_first(self, asr: ASR) -> None:
@@ -212,17 +216,32 @@ class GlobalMap:
         return [cls(float(t), n, m, tuple(c), tuple(cm), float(overlap), reason)]
 
     def _align(self, n: int, m: int) -> Alignment | None:
+        a = self._align_pair(n, m)
+        self.alignments[(n, m)] = a
+        return a
+
+    def _align_pair(self, n: int, m: int) -> Alignment | None:
         p = self.params
         pn, nn = surface_points(self.asrs[n], p.sample_spacing)
         pm, nm = surface_points(self.asrs[m], p.sample_spacing)
         # Align the smaller set onto the larger one: the inlier fraction is then about the part
         # of the smaller ASR the larger one explains.
         if len(pn) <= len(pm):
-            return align_points(pn, pm, nm, p.verify_inlier_distance)
-        a = align_points(pm, pn, nn, p.verify_inlier_distance)
+            a = align_points(pn, pm, nm, p.verify_inlier_distance)
+        else:
+            a = align_points(pm, pn, nn, p.verify_inlier_distance)
+            a = None if a is None else dataclasses.replace(a, correction=inverse(a.correction))
         if a is None:
             return None
-        return Alignment(inverse(a.correction), a.rms, a.inliers, a.shift)
+        # Free-space consistency: once aligned, neither ASR may show walls inside the other's space.
+        moved = transform_points(a.correction, pn)
+        poly_n = shapely.transform(global_polygon(self.asrs[n]), lambda c: transform_points(a.correction, c))
+        margin = p.verify_free_space_margin
+        violation = max(
+            free_space_violation(moved, global_polygon(self.asrs[m]), margin),
+            free_space_violation(pm, poly_n, margin),
+        )
+        return dataclasses.replace(a, violation=violation)
 
     def _verified(self, a: Alignment | None) -> bool:
         p = self.params
@@ -232,6 +251,7 @@ class GlobalMap:
             and a.inliers >= p.verify_min_inliers
             and a.shift <= p.verify_max_correction
             and abs(a.correction[2]) <= p.verify_max_rotation
+            and a.violation <= p.verify_max_violation
         )
 
     def _close(self, t, n, m, c, cm, overlap, reason, align: Alignment | None) -> list[Event]:
