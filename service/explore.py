@@ -75,8 +75,14 @@ class ExploreParams:
     turn_in_place: float = 0.6
     #: m. Steering looks this far ahead for a free heading.
     lookahead: float = 1.0
-    #: m. Lateral margin added to the robot's half width when judging a heading free.
+    #: m. Lateral margin added to the robot's half width when judging a heading free (steering).
+    steer_margin: float = 0.12
+    #: m. Lateral margin of the safety stop's corridor, and of steering through a doorway (0.9 m
+    #: doors leave 0.24 m a side).
     avoid_margin: float = 0.05
+    #: m. A scan point closer than this to the turning centre blocks turning on the spot: the
+    #: P2DX's rear corners sweep 0.368 m, and the laser cannot see what is behind.
+    turn_radius: float = 0.41
     #: m. Safety stop: no forward motion while a surface in the robot's path is closer to the laser.
     stop_distance: float = 0.3
     #: m. Forward speed falls linearly to zero over this distance before the stop distance.
@@ -451,8 +457,10 @@ class Explorer:
         self._recovery: list[tuple[float, float, float]] = []  # (duration s, v, w) still to run
         self._recovery_until = 0.0
         self._recovery_cmd = (0.0, 0.0)
+        self._last: Command | None = None
         self.finished = False
-        self.counts = {"goals": 0, "unknown": 0, "exits": 0, "backtracks": 0, "stuck": 0, "failed": 0}
+        self.counts = {"goals": 0, "unknown": 0, "exits": 0, "backtracks": 0, "stuck": 0, "failed": 0,
+                       "unjam": 0}
 
     # -- goal life cycle ---------------------------------------------------------------------------
     def _set_goal(self, goal: Goal, t: float) -> None:
@@ -499,10 +507,25 @@ class Explorer:
         return False
 
     # -- the control step --------------------------------------------------------------------------
-    def step(self, view: MapView, points: np.ndarray, t: float) -> Command:
-        """The command for now. ``points``: latest scan returns (N, 2) in the robot frame (m)."""
+    def step(self, view: MapView, points: np.ndarray, t: float, stalled: bool = False) -> Command:
+        """The command for now. ``points``: latest scan returns (N, 2) in the robot frame (m);
+        ``stalled``: the robot reports stalled wheels (P2OS stall bits)."""
         if self._recovery or t < self._recovery_until:
             return self._recover(points, t)
+        if stalled and self._last is not None and (self._last.v != 0.0 or self._last.w != 0.0):
+            # Something the laser cannot see (behind, beside) blocks the motion: move clear
+            # (forward when the front is free, else back) and carry on with the same goal.
+            self.counts["unjam"] += 1
+            d = 1.0 if self._front_free(points) else -1.0
+            if self._last.v != 0.0 and math.copysign(1.0, self._last.v) == d:
+                d = -d
+            p = self.p
+            self._queue([(p.recovery_distance / p.recovery_speed, d * p.recovery_speed, 0.0)], t)
+            return self._recover(points, t)
+        self._last = self._step(view, points, t)
+        return self._last
+
+    def _step(self, view: MapView, points: np.ndarray, t: float) -> Command:
         if not self._still_valid(view):
             goal = self.planner.plan(view)
             self._set_goal(goal, t)
@@ -537,7 +560,7 @@ class Explorer:
                 self.planner.looked_at(g.asr, g.look_at)  # type: ignore[arg-type]
                 self.goal = None
                 return Command(0.0, 0.0, "looked at an unknown region")
-            return self._turn(bearing, points, t, "facing an unknown region")
+            return self._rotate(bearing, points, t, "facing an unknown region")
         return self._drive_to(g.target, pose, points, t, "to an unknown region")  # type: ignore[arg-type]
 
     def _traverse(self, g: Goal, pose: Pose, points: np.ndarray, t: float) -> Command:
@@ -561,10 +584,15 @@ class Explorer:
         # Doorways leave ~0.24 m a side: steer with a tight margin so the jambs do not repel the robot.
         return self._drive_to(g.through, pose, points, t, f"{what} {g.exit}", margin=0.02)  # type: ignore[arg-type]
 
-    def _turn(self, bearing: float, points: np.ndarray, t: float, status: str) -> Command:
-        self._progress(abs(bearing), t)
-        if self._stuck(t):
-            return self._start_recovery(points, t)
+    def _rotate(self, bearing: float, points: np.ndarray, t: float, status: str,
+                track: bool = True) -> Command:
+        """Turn on the spot by ``bearing`` (rad), backing off first if a surface is within the sweep."""
+        if track:
+            self._progress(abs(bearing), t)
+            if self._stuck(t):
+                return self._start_recovery(points, t)
+        if len(points) and float(np.hypot(points[:, 0], points[:, 1]).min()) < self.p.turn_radius:
+            return Command(-0.5 * self.p.recovery_speed, 0.0, f"{status} (backing off to turn)")
         w = float(np.clip(self.p.k_heading * bearing, -self.p.w_max, self.p.w_max))
         if abs(w) < 0.15:
             w = math.copysign(0.15, bearing)  # below this P2OS barely turns (1 deg/s resolution)
@@ -578,16 +606,13 @@ class Explorer:
         if self._stuck(t):
             return self._start_recovery(points, t)
         want = wrap(math.atan2(dy, dx) - pose[2])
-        heading = self._steer(want, dist, points, self.p.avoid_margin if margin is None else margin)
+        heading = self._steer(want, dist, points, self.p.steer_margin if margin is None else margin)
         if heading is None:
             # Nothing free towards the target: turn towards it and let stuck detection decide.
-            return Command(0.0, float(np.clip(self.p.k_heading * want, -self.p.w_max, self.p.w_max)),
-                           f"{status} (blocked)")
-        w = float(np.clip(self.p.k_heading * heading, -self.p.w_max, self.p.w_max))
+            return self._rotate(want, points, t, f"{status} (blocked)", track=False)
         if abs(heading) > self.p.turn_in_place:
-            if abs(w) < 0.15:
-                w = math.copysign(0.15, heading)
-            return Command(0.0, w, status)
+            return self._rotate(heading, points, t, status, track=False)
+        w = float(np.clip(self.p.k_heading * heading, -self.p.w_max, self.p.w_max))
         v = self.p.v_max * math.cos(heading) * min(1.0, dist / 0.6 + 0.2)
         v = safety_limit(points, v, self.p)
         return Command(v, w, status if v > 0.0 else f"{status} (safety stop)")
@@ -615,18 +640,26 @@ class Explorer:
     def _stuck(self, t: float) -> bool:
         return t - self._best_t > self.p.stuck_time
 
+    def _front_free(self, points: np.ndarray) -> bool:
+        if not len(points):
+            return True
+        front = free_distance(points, np.array([0.0]), self.p, self.p.avoid_margin)[0]
+        return bool(front > self.p.recovery_distance + self.p.stop_distance)
+
+    def _queue(self, moves: list[tuple[float, float, float]], t: float) -> None:
+        self._recovery = list(moves)
+        self._recovery_until = t
+
     def _start_recovery(self, points: np.ndarray, t: float) -> Command:
         self.counts["stuck"] += 1
-        front = free_distance(points, np.array([0.0]), self.p, self.p.avoid_margin)[0] if len(points) else 0.0
-        back = 1.0 if front > self.p.recovery_distance + self.p.stop_distance else -1.0
+        d = 1.0 if self._front_free(points) else -1.0
         # Turn towards the more open side, judged from the scan.
         side = free_distance(points, np.radians([60.0, -60.0]), self.p, self.p.avoid_margin)
         turn = 1.0 if side[0] >= side[1] else -1.0
-        self._recovery = [
-            (self.p.recovery_distance / self.p.recovery_speed, back * self.p.recovery_speed, 0.0),
+        self._queue([
+            (self.p.recovery_distance / self.p.recovery_speed, d * self.p.recovery_speed, 0.0),
             (self.p.recovery_turn / (0.5 * self.p.w_max), 0.0, turn * 0.5 * self.p.w_max),
-        ]
-        self._recovery_until = t
+        ], t)
         self._give_up("stuck")
         return self._recover(points, t)
 

@@ -175,7 +175,7 @@ def test_safety_stop_ignores_surfaces_beside_the_path_and_reverse_motion():
 def test_the_controller_never_drives_forward_into_a_close_surface():
     a = room(1, -5, -5, 5, 5, edges=("surface", "unknown", "surface", "surface"))
     cmd = Explorer().step(view([a], 1, pose=(0.0, 0.0, 0.0)), wall_points(0.2, -3, 3), 0.0)
-    assert cmd.v == 0.0
+    assert cmd.v <= 0.0  # stands, or backs off to have room to turn
 
 
 def test_scan_points_and_free_distance():

@@ -1,0 +1,564 @@
+"""Simulated runs: a Pioneer 2DX with an LMS200 exploring a :class:`~service.sim.world.World`.
+
+Two ways to run, with the same robot (:class:`SimRobot`: the pioneer package's
+:class:`~pioneer.physics.DiffDrive` kinematics and odometry error, this package's collision body
+and ray caster), the same explorer and the same summary:
+
+- :class:`DirectSim`: one thread, a simulated clock, the mapper called in-process. Deterministic
+  for a seed and as fast as the computer allows; what the tests use.
+- :class:`StackSim`: the real thing in one process. The emulators speak P2OS and LMS2xx on pty
+  pairs; :class:`service.pipeline.Service` reads them through the drivers exactly as on the robot,
+  maps, stores and publishes on Zenoh; the explorer reads the mapper and drives the robot through
+  the Pioneer driver.
+
+Time in :class:`StackSim`: every component keeps the host's ``time.monotonic()`` (the drivers stamp
+readings with it), and the *world* runs ``speed`` times faster: the Pioneer's SIP cycle and the
+laser's scan period are divided by ``speed`` and the body integrates ``speed`` x the elapsed wall
+time, so per simulated second there are as many SIPs and scans as on the robot, and every velocity
+in a P2OS command or SIP keeps its real meaning. The service sees a robot that moves ``speed``
+times faster than its commands, which it never checks. ``speed`` is bounded by how fast the mapper
+keeps up (the pipeline drops the oldest scans when it cannot; the summary counts them).
+
+Frames: the world frame is the world file's; the emulated odometry starts at (0, 0, 0) at the
+world's start pose, as P2OS does at power-on. Units: metres, radians, seconds.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from mapper.se2 import Pose, compose, inverse
+from mapper.types import Odometry, Scan
+from pioneer.physics import DiffDrive, OdometryError
+from service.evaluate import Track, evaluate
+from service.explore import Command, ExploreParams, Explorer, MapView, links_of, scan_points
+from service.sim.physics import Body
+from service.sim.raycast import LMS_MAX_RANGE, RayCaster
+from service.sim.world import World
+
+log = logging.getLogger(__name__)
+
+#: The default odometry error: 1 % long on distance, 0.5 % short on rotation, 0.5°/m heading drift:
+#: about what a Pioneer 2DX on a lab floor shows, enough that the global map visibly drifts.
+DEFAULT_ODOMETRY_ERROR = OdometryError(distance_scale=1.01, heading_scale=0.995,
+                                       drift_per_m=math.radians(0.5))
+
+
+@dataclass(frozen=True)
+class SimParams:
+    """One simulated run. Times in simulated seconds.
+
+    ``sip_cycle``: P2OS SIP cycle (0.1 s); ``scan_period``: seconds between scans (the LMS200 at
+    38400 baud, 181 values: 96.9 ms); ``resolution``: degrees between beams; ``sigma``: range noise
+    (m); ``odometry_error``: the encoders' error; ``footprint``: ``"rect"`` or ``"circle"``;
+    ``duration``: stop after this long (None: when exploration is done, capped at ``max_duration``).
+    """
+
+    sip_cycle: float = 0.1
+    scan_period: float = 0.0969
+    resolution: float = 1.0
+    sigma: float = 0.01
+    odometry_error: OdometryError = DEFAULT_ODOMETRY_ERROR
+    footprint: str = "rect"
+    seed: int = 0
+    explore: bool = True
+    duration: float | None = None
+    max_duration: float = 3600.0
+    explore_params: ExploreParams = field(default_factory=ExploreParams)
+
+
+class SimRobot:
+    """The robot in the world: DiffDrive kinematics (true and odometry poses in the emulator's
+    frame, starting at (0, 0, 0)), a collision :class:`Body` in the world frame behind its motion
+    hook, and a :class:`RayCaster` for the laser. ``truth`` is the true pose track (world frame)
+    and ``odometry`` the odometry track, both on the caller's clock."""
+
+    def __init__(self, world: World, params: SimParams, clock: Callable[[], float]) -> None:
+        self.world = world
+        self.params = params
+        self.clock = clock
+        self.body = Body(world, footprint=params.footprint, record_every=0.0)
+        self.caster = RayCaster(world, sigma=params.sigma, seed=params.seed)
+        self.drive = DiffDrive(odometry_error=params.odometry_error, motion_hook=self.motion_hook)
+        self.stalls = 0
+        self.truth = Track([clock()], [world.start])
+        self._lock = threading.Lock()
+
+    def motion_hook(self, old: Pose, new: Pose) -> Pose | None:
+        """The pioneer's motion hook: the world's say on a step from ``old`` to ``new`` (emulator frame)."""
+        reached, stalled = self.body.move(self.body.world_pose(new), self.clock())
+        with self._lock:
+            self.truth.append(self.clock(), reached)
+        if not stalled:
+            return new  # exactly as wished: the drive compares poses to detect a block
+        self.stalls += 1
+        return self.body.emulator_pose(reached)
+
+    def true_pose_at(self, t: float) -> Pose:
+        """The true pose (world frame) at time ``t`` of :attr:`clock`."""
+        with self._lock:
+            return self.truth.at(t)
+
+    def angles(self) -> np.ndarray:
+        """Beam angles (rad, laser frame) of a 180° scan at the configured resolution."""
+        n = round(180.0 / self.params.resolution) + 1
+        return np.radians(np.linspace(-90.0, 90.0, n))
+
+    def ranges(self, t: float, angles: np.ndarray) -> np.ndarray:
+        """A scan (m) taken at time ``t``: the laser emulators' range source signature."""
+        return self.caster.scan(self.true_pose_at(t), angles)
+
+
+class LockedMapper:
+    """The mapper behind a lock, so the explorer reads a consistent state while the mapper thread
+    writes. Records what the summary needs: every event, and which ASR each was entered from."""
+
+    def __init__(self, mapper: Any) -> None:
+        self.mapper = mapper
+        self.lock = threading.RLock()
+        self.events: list[Any] = []
+        self.entered_from: dict[int, int | None] = {}
+        self._links: list = []
+        self._dirty = True
+
+    def add_odometry(self, odo: Odometry):
+        with self.lock:
+            return self.mapper.add_odometry(odo)
+
+    def add_scan(self, scan: Scan):
+        with self.lock:
+            events = list(self.mapper.add_scan(scan) or ())
+            for e in events:
+                if getattr(e, "kind", "") == "asr_created":
+                    self.entered_from[int(e.asr)] = getattr(e, "entered_from", None)
+                if getattr(e, "kind", "") != "asr_updated":
+                    self.events.append(e)
+            if events:
+                self._dirty = True
+            return events
+
+    def __getattr__(self, name: str):
+        return getattr(self.mapper, name)
+
+    def document(self) -> dict:
+        with self.lock:
+            return map_document(self.mapper)
+
+    def view(self) -> MapView:
+        """The explorer's view (call with :attr:`lock` held)."""
+        m = self.mapper
+        if self._dirty:
+            self._dirty = False
+            self._links = links_of(_links_of_mapper(m))
+        return MapView(m.current, m.pose, m.asrs, self._links)
+
+
+def _links_of_mapper(m: Any) -> list:
+    for path in ("links", "topology.links", "globalmap.topology.links", "global_map.topology.links"):
+        obj = m
+        for part in path.split("."):
+            obj = getattr(obj, part, None)
+            if obj is None:
+                break
+        if obj is not None:
+            return list(obj)
+    if hasattr(m, "document"):
+        return list(m.document().get("links", []))
+    return []
+
+
+def new_mapper(params: Any = None):
+    """The mapper with ``params`` (default: :class:`mapper.params.MapperParams`, a P2DX's laser offset)."""
+    try:
+        from mapper import Mapper
+    except ImportError:  # the package does not export it (yet): the module does
+        from mapper.mapper import Mapper
+    return Mapper(params) if params is not None else Mapper()
+
+
+# --- the summary ------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Summary:
+    """What a run achieved, from the map and from ground truth. Distances in m, times in s."""
+
+    world: str
+    sim_time: float
+    wall_time: float
+    finished: bool
+    asrs: int
+    exits: int
+    exits_unexplored: int
+    cycles: int
+    true_cycles: int
+    false_cycles: int
+    revisits: int
+    revisits_missed: int
+    distance: float
+    contacts: int
+    stuck: int
+    regions_visited: list[str]
+    regions_missed: list[str]
+    scans: int = 0
+    scans_dropped: int = 0
+    false_pairs: tuple = ()
+
+    @property
+    def realtime_factor(self) -> float:
+        return self.sim_time / self.wall_time if self.wall_time > 0 else math.inf
+
+    def lines(self) -> list[str]:
+        regions = len(self.regions_visited) + len(self.regions_missed)
+        out = [
+            f"world {self.world}: {'exploration complete' if self.finished else 'stopped before the end'} "
+            f"after {self.sim_time:.0f} s simulated in {self.wall_time:.0f} s "
+            f"({self.realtime_factor:.1f}x real time)",
+            f"ASRs {self.asrs}, exits {self.exits} ({self.exits_unexplored} unexplored)",
+            f"cycles detected {self.cycles}: {self.true_cycles} true, {self.false_cycles} false"
+            + (f" {list(self.false_pairs)}" if self.false_pairs else ""),
+            f"revisits {self.revisits}, missed {self.revisits_missed}",
+            f"distance driven {self.distance:.1f} m, contacts {self.contacts}, stuck {self.stuck}",
+            f"regions entered {len(self.regions_visited)}/{regions}"
+            + (f" (missed: {', '.join(self.regions_missed)})" if self.regions_missed else ""),
+        ]
+        if self.scans:
+            out.append(f"scans mapped {self.scans}, dropped {self.scans_dropped}")
+        return out
+
+
+def summarise(world: World, doc: dict, robot: SimRobot, odometry: Track, entered_from: dict,
+              explorer: Explorer | None, sim_time: float, wall_time: float, finished: bool) -> Summary:
+    """Score the map document against the robot's ground truth (:func:`service.evaluate.evaluate`)."""
+    with robot._lock:
+        truth = Track(robot.truth.t, robot.truth.poses)
+    asrs = doc.get("asrs", [])
+    if asrs and len(truth) and len(odometry):
+        ev = evaluate(doc, truth, odometry, entered_from, margin=math.inf)
+        cycles, tp, fp, rev, det, pairs = (ev.cycles, ev.true_positives, ev.false_positives, ev.revisits,
+                                           ev.detected, ev.false_pairs)
+    else:
+        cycles = tp = fp = rev = det = 0
+        pairs = ()
+    exits = [e for a in asrs for e in a.get("exits", [])]
+    visited = {world.region_of(p[0], p[1]) for p in truth.poses[:: max(1, len(truth) // 5000)]}
+    visited |= {world.region_of(*truth.poses[-1][:2])}
+    names = list(world.regions)
+    return Summary(
+        world=world.name, sim_time=sim_time, wall_time=wall_time, finished=finished,
+        asrs=len(asrs), exits=len(exits), exits_unexplored=sum(e.get("to") is None for e in exits),
+        cycles=cycles, true_cycles=tp, false_cycles=fp, revisits=rev, revisits_missed=rev - det,
+        distance=robot.body.distance, contacts=len(robot.body.contacts),
+        stuck=explorer.counts["stuck"] if explorer else 0,
+        regions_visited=[n for n in names if n in visited],
+        regions_missed=[n for n in names if n not in visited],
+        false_pairs=pairs,
+    )
+
+
+def map_document(mapper: Any, robot_name: str = "pioneer") -> dict:
+    """The ``asrmap/map/1`` document of ``mapper`` (``Mapper.document()``), stamped with the robot name."""
+    if hasattr(mapper, "document"):
+        doc = dict(mapper.document())
+    else:  # a mapper without document(): its ASRs alone
+        from mapper.document import to_document
+
+        doc = to_document([mapper.asrs[k] for k in sorted(mapper.asrs)], [], [])
+    doc.setdefault("schema", "asrmap/map/1")
+    doc["robot"] = robot_name
+    return doc
+
+
+# --- one thread, simulated clock ------------------------------------------------------------------------
+
+
+class DirectSim:
+    """The robot, the mapper and the explorer stepped in turn on a simulated clock (see the module
+    docstring). ``progress(sim_time, explorer_status, mapper)`` is called about once a simulated second."""
+
+    def __init__(self, world: World, params: SimParams | None = None, mapper: Any = None,
+                 progress: Callable[[float, str, Any], None] | None = None) -> None:
+        self.world = world
+        self.p = params or SimParams()
+        self.t = 0.0
+        self.robot = SimRobot(world, self.p, lambda: self.t)
+        self.robot.drive.motors_enabled = True
+        self.mapper = LockedMapper(mapper if mapper is not None else new_mapper())
+        self.explorer = Explorer(self.p.explore_params) if self.p.explore else None
+        self.odometry = Track()
+        self.progress = progress
+        self.scans = 0
+        self.command = Command(0.0, 0.0, "idle")
+
+    def run(self) -> Summary:
+        p = self.p
+        limit = p.duration if p.duration is not None else p.max_duration
+        angles = self.robot.angles()
+        next_scan = 0.0
+        next_progress = 0.0
+        wall0 = time.perf_counter()
+        finished = False
+        while self.t < limit:
+            self.t += p.sip_cycle
+            self.robot.drive.step(p.sip_cycle)
+            odo = self.robot.drive.odometry_pose
+            self.odometry.append(self.t, odo)
+            self.mapper.add_odometry(Odometry(self.t, *odo))
+            if self.t + 1e-9 < next_scan:
+                continue
+            next_scan += p.scan_period
+            ranges = self.robot.ranges(self.t, angles)
+            self.mapper.add_scan(Scan(self.t, ranges, float(angles[0]), float(angles[1] - angles[0]),
+                                      LMS_MAX_RANGE))
+            self.scans += 1
+            if self.explorer is not None:
+                pts = scan_points(ranges, angles, LMS_MAX_RANGE, self.explorer.p)
+                stalled = self.robot.drive.left_stall or self.robot.drive.right_stall
+                with self.mapper.lock:
+                    self.command = self.explorer.step(self.mapper.view(), pts, self.t, stalled)
+                self.robot.drive.set_velocity(self.command.v)
+                self.robot.drive.set_rotation(self.command.w)
+                if self.command.done and p.duration is None:
+                    finished = True
+                    break
+            if self.progress is not None and self.t >= next_progress:
+                next_progress = self.t + 1.0
+                self.progress(self.t, self.command.status, self.mapper)
+        doc = map_document(self.mapper.mapper)
+        s = summarise(self.world, doc, self.robot, self.odometry, self.mapper.entered_from, self.explorer,
+                      self.t, time.perf_counter() - wall0, finished)
+        s.scans = self.scans
+        self.document = doc
+        return s
+
+
+# --- the whole stack on ptys ------------------------------------------------------------------------------
+
+
+class _ScaledDrive(DiffDrive):
+    """DiffDrive whose time runs ``speed`` times faster than the wall clock the emulator steps it with."""
+
+    speed = 1.0
+
+    def step(self, dt: float) -> None:
+        super().step(dt * self.speed)
+
+
+class StackSim:
+    """Emulators on ptys + :class:`service.pipeline.Service` + the explorer (see the module docstring).
+
+    ``speed``: simulated seconds per wall second. ``state_dir``: where the service keeps its map
+    store (a temporary directory by default). ``zenoh_listen``: endpoints the service listens on
+    (empty: Zenoh's defaults for a peer, loopback-only scouting is not forced).
+    """
+
+    def __init__(self, world: World, params: SimParams | None = None, *, speed: float = 1.0,
+                 state_dir: str | None = None, robot_name: str = "pioneer",
+                 progress: Callable[[float, str, Any], None] | None = None) -> None:
+        self.world = world
+        self.p = params or SimParams()
+        self.speed = float(speed)
+        self.robot_name = robot_name
+        self.progress = progress
+        self._tmp = None if state_dir else tempfile.TemporaryDirectory(prefix="asrmap-sim-")
+        self.state_dir = state_dir or self._tmp.name  # type: ignore[union-attr]
+        self._wall0 = time.monotonic()
+        self.robot = SimRobot(world, self.p, self.sim_clock)
+        self.explorer = Explorer(self.p.explore_params) if self.p.explore else None
+        self.mapper: LockedMapper | None = None
+        self.service = None
+        self._scan_lock = threading.Lock()
+        self._scan: Any = None
+        self._user_stop = threading.Event()
+        self.command = Command(0.0, 0.0, "idle")
+
+    def request_stop(self) -> None:
+        """End the run at the next explorer step (safe from a signal handler)."""
+        self._user_stop.set()
+
+    def sim_clock(self) -> float:
+        """Simulated seconds since the start (wall time x speed)."""
+        return (time.monotonic() - self._wall0) * self.speed
+
+    def _wall_to_sim(self, t_wall: float) -> float:
+        return (t_wall - self._wall0) * self.speed
+
+    # -- wiring --------------------------------------------------------------------------------------
+    def _config(self, pioneer_port: str, laser_port: str):
+        from service import config as cfgmod
+
+        cfg = cfgmod.Config()
+        cfg = replace(
+            cfg,
+            robot=replace(cfg.robot, name=self.robot_name),
+            pioneer=replace(cfg.pioneer, port=pioneer_port),
+            laser=replace(cfg.laser, port=laser_port, baudrate=self._laser_baud(),
+                          resolution=self.p.resolution),
+            store=replace(cfg.store, state_dir=self.state_dir),
+        )
+        return cfg
+
+    def _laser_baud(self) -> int:
+        # The reader dates a scan by its arrival minus the telegram's transmission time at the line's
+        # baud; a pty delivers at once, so at a high speed factor the 97 ms of 38400 baud would put
+        # every scan a world-second early. 500 kbaud makes that error 7 ms of wall time.
+        return 38400 if self.speed <= 1.0 else 500000
+
+    def _open_laser(self, cfg):
+        from service.pipeline import open_laser
+
+        dev = open_laser(cfg)
+
+        def keep(scan: Any) -> None:
+            with self._scan_lock:
+                self._scan = scan
+
+        dev.on_scan(keep)
+        return dev
+
+    def _new_mapper(self, cfg, doc):
+        # A simulation always starts a new map: the world is new to the robot.
+        self.mapper = LockedMapper(new_mapper(cfg.mapper_params()))
+        return self.mapper
+
+    def run(self) -> Summary:
+        from laser.emulator import LMS2xxEmulator
+        from pioneer.emulator import PioneerEmulator
+        from service.pipeline import Service
+        from service.ptys import open_pty
+
+        p = self.p
+        speed = self.speed
+        robot = self.robot
+        drive = _ScaledDrive(odometry_error=p.odometry_error, motion_hook=robot.motion_hook)
+        drive.speed = speed
+        robot.drive = drive
+        pio_pty, las_pty = open_pty(), open_pty()
+        sim_scan_period = p.scan_period
+
+        class _Laser(LMS2xxEmulator):
+            def _period(self) -> float:  # the world's scan rate, scaled with the world's clock
+                return sim_scan_period / speed
+
+        def ranges(t_wall: float, angles: np.ndarray) -> np.ndarray:
+            return robot.ranges(self._wall_to_sim(t_wall), angles)
+
+        pio = PioneerEmulator(pio_pty.master, body=drive, sip_cycle=p.sip_cycle / speed)
+        las = _Laser(las_pty.master, ranges, resolution=p.resolution, boot_time=0.05)
+        cfg = self._config(pio_pty.path, las_pty.path)
+        service = self.service = Service(cfg, open_laser=self._open_laser, new_mapper=self._new_mapper)
+        stop = threading.Event()
+        result: dict[str, Any] = {}
+
+        def serve() -> None:
+            try:
+                result["status"] = service.run(stop)
+            except BaseException as exc:  # reported by the caller
+                result["error"] = exc
+                stop.set()
+
+        limit = p.duration if p.duration is not None else p.max_duration
+        finished = False
+        odometry = Track()
+        pio.start()
+        las.start()
+        self._wall0 = time.monotonic()
+        thread = threading.Thread(target=serve, name="asrmap-service", daemon=True)
+        thread.start()
+        try:
+            finished = self._drive(service, stop, limit, odometry)
+        finally:
+            stop.set()
+            thread.join(10.0)
+            pio.stop()
+            las.stop()
+            pio_pty.close()
+            las_pty.close()
+        if "error" in result:
+            raise result["error"]
+        mapper = self.mapper.mapper if self.mapper else None
+        doc = map_document(mapper, self.robot_name) if mapper is not None else {"asrs": []}
+        # The mapper's clock is the host's monotonic clock: truth is on the simulated one.
+        odo_sim = Track([self._wall_to_sim(t) for t in odometry.t], odometry.poses)
+        doc_sim = _retime(doc, self._wall_to_sim)
+        s = summarise(self.world, doc_sim, robot, odo_sim, self.mapper.entered_from if self.mapper else {},
+                      self.explorer, self.sim_clock(), time.monotonic() - self._wall0, finished)
+        w = service.worker
+        if w is not None:
+            s.scans = w.counters.get("scans_mapped", 0)
+        s.scans_dropped = getattr(service.scans, "dropped", 0)
+        self.document = doc
+        return s
+
+    def _drive(self, service, stop: threading.Event, limit: float, odometry: Track) -> bool:
+        """The explorer loop: once per new scan, read the mapper, command the robot. True when done."""
+        last_scan = None
+        next_progress = 0.0
+        period = self.p.scan_period / self.speed
+        while not stop.is_set():
+            now = self.sim_clock()
+            if now >= limit or self._user_stop.is_set():
+                return False
+            latest = service.odometry.latest() if hasattr(service, "odometry") else None
+            if latest is not None and (not odometry.t or latest[0] > odometry.t[-1]):
+                odometry.append(latest[0], latest[1])
+            with self._scan_lock:
+                scan = self._scan
+            dev = service.pioneer.device
+            odo_now = getattr(dev, "odometry", None) if dev is not None else None
+            sip = getattr(odo_now, "sip", None)
+            stalled = bool(getattr(sip, "left_stall", False) or getattr(sip, "right_stall", False))
+            if scan is None or scan is last_scan or dev is None or self.mapper is None:
+                time.sleep(min(0.01, period / 4))
+                continue
+            last_scan = scan
+            if self.explorer is not None:
+                pts = scan_points(np.asarray(scan.ranges, float), np.asarray(scan.angles, float),
+                                  float(getattr(scan, "max_range", LMS_MAX_RANGE)), self.explorer.p)
+                with self.mapper.lock:
+                    if self.mapper.mapper.current is None:
+                        cmd = Command(0.0, 0.0, "waiting for the first ASR")
+                    else:
+                        cmd = self.explorer.step(self.mapper.view(), pts, now, stalled)
+                self.command = cmd
+                with contextlib.suppress(Exception):
+                    _send_velocity(dev, cmd.v, cmd.w)
+                if cmd.done and self.p.duration is None:
+                    with contextlib.suppress(Exception):
+                        dev.stop()
+                    return True
+            if self.progress is not None and now >= next_progress:
+                next_progress = now + 1.0
+                self.progress(now, self.command.status, self.mapper)
+        return False
+
+
+def _send_velocity(dev: Any, v: float, w: float) -> None:
+    """Command ``v`` m/s and ``w`` rad/s through the Pioneer driver (VEL + RVEL)."""
+    dev.set_velocity(v, w)
+
+
+def _retime(doc: dict, f: Callable[[float], float]) -> dict:
+    """The document with ``created`` and cycle times mapped through ``f`` (host clock -> simulated)."""
+    out = dict(doc)
+    out["asrs"] = [{**a, "created": f(a["created"])} for a in doc.get("asrs", [])]
+    out["cycles"] = [{**c, "time": f(c["time"])} for c in doc.get("cycles", [])]
+    return out
+
+
+def world_frame_of(robot: SimRobot, doc: dict) -> Pose:
+    """The global map frame's pose in the world frame (the first ASR's true frame), for pictures."""
+    if not doc.get("asrs"):
+        return robot.world.start
+    first = doc["asrs"][0]
+    return compose(robot.true_pose_at(first["created"]), inverse(tuple(first["origin"])))
