@@ -34,6 +34,9 @@ from mapper.params import MapperParams
 
 #: Labels of a gap's cover: an exit, a closed gap (labelled ``surface`` on the boundary), or open.
 EXIT, CLOSED, OPEN = "exit", "surface", "unknown"
+_CANDIDATES = 6  # shortest candidates per gap checked for visibility
+_ALT_SLACK = 0.05  # m: a jamb's side is a few beams, its fit is off by a few cm
+_JAMB_MAX = 0.5  # m: the deepest wall whose jamb side counts as part of a doorway
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -74,6 +77,49 @@ def closest_on_segments(p: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.
     return a + t[..., None] * ab, t
 
 
+def _shortest(
+    seg: np.ndarray, o: np.ndarray, pp: np.ndarray, gap: np.ndarray, right: np.ndarray, p: MapperParams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For each gap, the shortest visible segment from its occluding point ``pp`` across the gap.
+
+    Returns the surface index it lands on, its length (inf: none visible), the point and the
+    fraction along that surface.
+    """
+    m = len(seg)
+    # every candidate (gap g, surface k) at once
+    q, tq = closest_on_segments(pp[:, None, :], seg[None, :, :, :])
+    length = np.hypot(q[..., 0] - pp[:, None, 0], q[..., 1] - pp[:, None, 1])
+    k = np.arange(m)[None, :]
+    across = np.where(right[:, None], k > gap[:, None], k <= gap[:, None])
+    length = np.where(across, length, np.inf)
+    # only the few shortest candidates of each gap are checked for visibility: a longer one is
+    # taken only when all of these are hidden, and then the gap is wide open anyway
+    nc = min(_CANDIDATES, m)
+    cand = np.argpartition(length, nc - 1, axis=1)[:, :nc]  # (G, C)
+    g_ = np.arange(len(gap))[:, None]
+    clen, cq, ctq = length[g_, cand], q[g_, cand], tq[g_, cand]
+    # surfaces strictly between P and Q must lie beyond the line PQ (seen from the laser)
+    lo_k = np.where(right[:, None], gap[:, None] + 1, cand + 1)  # first surface strictly between
+    hi_k = np.where(right[:, None], cand - 1, gap[:, None])  # last one
+    idx = np.arange(m)
+    inside = (idx[None, None, :] >= lo_k[..., None]) & (idx[None, None, :] <= hi_k[..., None])  # (G,C,M)
+    d = cq - pp[:, None, :]  # (G, C, 2) line direction
+    dn = np.maximum(np.hypot(d[..., 0], d[..., 1]), 1e-9)
+    side_o = _cross(d, o - pp[:, None, :])  # which side of the line the laser is on
+    sgn = np.where(side_o >= 0, 1.0, -1.0)
+    ends = seg.reshape(1, 1, 2 * m, 2) - pp[:, None, None, :]  # (G, 1, 2M, 2)
+    side_e = _cross(d[:, :, None, :], ends) / dn[..., None]  # (G, C, 2M)
+    in_front = (side_e * sgn[..., None] > p.visibility_tolerance).reshape(*side_e.shape[:2], m, 2).any(-1)
+    clen = np.where((inside & in_front).any(-1), np.inf, clen)
+    pick = np.argmin(clen, axis=1)
+    g1 = np.arange(len(gap))
+    best = cand[g1, pick]
+    best_len = clen[g1, pick]
+    qb = cq[g1, pick]
+    tqb = ctq[g1, pick]
+    return best, best_len, qb, tqb
+
+
 def find_covers(surf: Surfaces, p: MapperParams) -> Covers:
     """Covers of every gap of one view; see the module docstring."""
     seg = surf.segments
@@ -90,33 +136,24 @@ def find_covers(surf: Surfaces, p: MapperParams) -> Covers:
     right = np.hypot(*(end_j - o).T) <= np.hypot(*(start_n - o).T)  # P = end of j, opening CCW
     pp = np.where(right[:, None], end_j, start_n)
 
-    # every candidate (gap g, surface k) at once
-    q, tq = closest_on_segments(pp[:, None, :], seg[None, :, :, :])
-    length = np.hypot(q[..., 0] - pp[:, None, 0], q[..., 1] - pp[:, None, 1])
-    k = np.arange(m)[None, :]
-    across = np.where(right[:, None], k > gap[:, None], k <= gap[:, None])
-    # surfaces strictly between P and Q must lie beyond the line PQ (seen from the laser)
-    lo_k = np.where(right[:, None], gap[:, None] + 1, k + 1)  # first surface strictly between
-    hi_k = np.where(right[:, None], k - 1, gap[:, None])  # last one
-    idx = np.arange(m)
-    inside = (idx[None, None, :] >= lo_k[..., None]) & (idx[None, None, :] <= hi_k[..., None])  # (G,M,M)
-    d = q - pp[:, None, :]  # (G, M, 2) line direction
-    dn = np.maximum(np.hypot(d[..., 0], d[..., 1]), 1e-9)
-    side_o = _cross(d, o - pp[:, None, :]) / dn  # signed distance of the laser from the line
-    sgn = np.where(side_o >= 0, 1.0, -1.0)
-    ends = seg.reshape(1, 1, 2 * m, 2) - pp[:, None, None, :]  # (G, 1, 2M, 2)
-    side_e = _cross(d[:, :, None, :], ends) / dn[..., None]  # (G, M, 2M)
-    in_front = (side_e * sgn[..., None] > p.visibility_tolerance).reshape(*side_e.shape[:2], m, 2).any(-1)
-    visible = across & ~(inside & in_front).any(-1)
-    length = np.where(visible, length, np.inf)
-    best = np.argmin(length, axis=1)
-    g_ = np.arange(len(gap))
-    best_len = length[g_, best]
-    qb = q[g_, best]
+    best, best_len, qb, tqb = _shortest(seg, o, pp, gap, right, p)
+    pos_p = np.where(right, 2 * gap + 1, 2 * gap + 2).astype(float)
+    # In a thick wall the occluding end is the far edge of a jamb's side: the same gap covered from
+    # the side's other end (the jamb's edge facing the robot) is as short, and it is the doorway
+    # the robot meets first. Take it when no more than ``_ALT_SLACK`` longer and nearer the laser.
+    alt = np.where(right[:, None], seg[gap, 0], seg[gap + 1, 1])
+    a_best, a_len, a_qb, a_tqb = _shortest(seg, o, alt, gap, right, p)
+    nearer = np.hypot(*(0.5 * (alt + a_qb) - o).T) < np.hypot(*(0.5 * (pp + qb) - o).T)
+    short = np.hypot(*(alt - pp).T) <= _JAMB_MAX
+    use = np.isfinite(a_len) & (a_len <= best_len + _ALT_SLACK) & nearer & short
+    if use.any():
+        pp = np.where(use[:, None], alt, pp)
+        best, best_len = np.where(use, a_best, best), np.where(use, a_len, best_len)
+        qb, tqb = np.where(use[:, None], a_qb, qb), np.where(use, a_tqb, tqb)
+        pos_p = np.where(use, np.where(right, 2 * gap, 2 * gap + 3), pos_p)
     label = np.where(best_len >= p.passage_width, EXIT, CLOSED).astype(object)
     label[~np.isfinite(best_len)] = OPEN
-    pos_p = np.where(right, 2 * gap + 1, 2 * gap + 2).astype(float)
-    pos_q = 2 * best + tq[g_, best]
+    pos_q = 2 * best + tqb
     a = np.where(right[:, None], pp, qb)
     b = np.where(right[:, None], qb, pp)
     lo, hi = np.minimum(pos_p, pos_q), np.maximum(pos_p, pos_q)

@@ -164,8 +164,7 @@ def _snap_corners(seg: np.ndarray, cluster: np.ndarray, c: np.ndarray, u: np.nda
     ok = same & (np.abs(den) > math.sin(math.radians(20.0)))
     if not ok.any():
         return
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = _cross(c[1:] - c[:-1], u[1:]) / den
+    t = np.divide(_cross(c[1:] - c[:-1], u[1:]), den, out=np.zeros_like(den), where=ok)
     x = c[:-1] + t[:, None] * u[:-1]
     near = (np.hypot(*(x - seg[:-1, 1]).T) < snap) & (np.hypot(*(x - seg[1:, 0]).T) < snap)
     j = np.flatnonzero(ok & near)

@@ -75,8 +75,16 @@ class MapperParams:
     view_spacing: float = 0.25
     #: rad. ...or turned this far (a turn in place reveals new sectors without moving).
     view_turn: float = math.radians(15.0)
-    #: m². A view that adds less area than this leaves the ASR unchanged (no AsrUpdated event).
-    min_area_gain: float = 0.05
+    #: m. The robot has left its ASR, even without crossing an exit, once it is this far outside
+    #: the polygon: half a passage width, beyond localisation jitter at the boundary.
+    leave_margin: float = 0.30
+    #: m. Depth of the region beyond each exit of an ASR that later views may not grow into (the
+    #: next room seen through a doorway belongs to the next ASR): a room's worth.
+    gate_depth: float = 4.0
+    #: m². A view that adds less area than this leaves the ASR unchanged (no relabelling, no
+    #: AsrUpdated). Tiny on purpose: the sliver a later view fills at the first view's rear corner
+    #: is well under 0.01 m², and leaving it would leave an ``unknown`` notch in a closed room.
+    min_area_gain: float = 1e-4
     #: Upper bound on the viewpoints kept per ASR (for the record and the localisation reference);
     #: the polygon itself is grown incrementally, so its cost does not depend on this.
     max_viewpoints: int = 200

@@ -111,11 +111,16 @@ def _drop_repeats(v: np.ndarray, labels: list[str]) -> tuple[np.ndarray, list[st
 
 
 def valid_polygon(v: np.ndarray) -> shapely.Polygon:
-    """A valid polygon from a ring that may touch or cross itself: the largest valid part."""
+    """A valid polygon from a ring that may touch or cross itself: the part holding the origin
+    (the robot, for a view), else the largest valid part."""
     poly = shapely.Polygon(v) if len(v) >= 3 else shapely.Polygon()
     if poly.is_valid:
         return poly
     fixed = shapely.make_valid(poly)
     parts = shapely.get_parts(fixed)
     polys = [q for g in parts for q in shapely.get_parts(g) if isinstance(q, shapely.Polygon)]
-    return max(polys, key=lambda q: q.area) if polys else shapely.Polygon()
+    if not polys:
+        return shapely.Polygon()
+    origin = shapely.Point(0.0, 0.0)
+    holding = [q for q in polys if q.covers(origin)]
+    return max(holding or polys, key=lambda q: q.area)

@@ -1,0 +1,316 @@
+"""Growing one ASR while the robot is inside it (method.md §3), ASR frame, metres.
+
+Each viewpoint's truncated view polygon (:mod:`mapper.view`), placed by the robot's localised pose
+in the ASR frame, is unioned into the ASR polygon, together with the robot's path between the
+viewpoints buffered by ``rear_closure`` (the robot's own swept footprint, which is free space: it
+keeps the ASR connected and containing every viewpoint even when a view is small).
+
+**Choice (better than recomputing from all viewpoints each scan):** method.md recomputes the ASR
+from the whole occlusion map every scan. A view polygon is observed free space truncated at that
+view's exits, so the union of all views equals that recomputation whenever the views agree, and it
+can be kept *incrementally*: one polygon union per viewpoint, independent of how many viewpoints
+came before. An exit of an earlier view that a later view sees past (covered by surfaces behind
+it) ends up inside the union and disappears from the boundary; ``unknown`` edges shrink the same
+way. The union is made valid (the largest part, holes dropped: an ASR boundary is one ring) and
+simplified to ``simplify_tolerance``.
+
+Labels of the final boundary are found geometrically, which survives union and simplification: an
+edge lying along (within ``label_tolerance``, parallel to within 20°) a stored exit segment is
+``exit``; along a stored surface segment (visible surfaces and closed gaps of every view) is
+``surface``; else ``unknown``. Exit endpoints are first inserted into the boundary as vertices, so
+an exit in a straight wall keeps its own edge after simplification. Stored segments that end up
+inside the polygon can never be on the boundary again (the union only grows) and are dropped, so
+the label store stays proportional to the boundary.
+
+The ASR's exits are the runs of ``exit`` edges at least ``passage_width`` wide (narrower remnants,
+partly covered by other views, are relabelled ``unknown``). Ids ``"<asr>/<n>"`` are kept from one
+update to the next for the exit whose midpoint is nearest (within half its width, at least 0.5 m).
+The centre is the centroid, or ``point_on_surface`` when the centroid falls outside (``centre_rule``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import shapely
+
+from mapper.params import MapperParams
+from mapper.se2 import Pose, transform_points
+from mapper.types import ASR, Exit
+from mapper.view import View, valid_polygon
+
+_PARALLEL = math.cos(math.radians(20.0))
+
+
+def _seg_distance(p: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """Distances (P, S) from points (P, 2) to segments (S, 2, 2)."""
+    a = seg[None, :, 0, :]
+    ab = seg[None, :, 1, :] - a
+    ap = p[:, None, :] - a
+    den = np.maximum(np.einsum("psi,psi->ps", ab, ab), 1e-18)
+    t = np.clip(np.einsum("psi,psi->ps", ap, ab) / den, 0.0, 1.0)
+    d = ap - t[..., None] * ab
+    return np.hypot(d[..., 0], d[..., 1])
+
+
+def _along(mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float) -> np.ndarray:
+    """(E,) True where an edge (midpoint, unit direction) lies along one of the segments.
+
+    An STRtree finds the segments within ``tol`` of each midpoint, so the cost follows the
+    boundary's length, not the product of edges and stored segments.
+    """
+    out = np.zeros(len(mid), dtype=bool)
+    if len(seg) == 0 or len(mid) == 0:
+        return out
+    tree = shapely.STRtree(shapely.linestrings(seg))
+    ei, si = tree.query(shapely.points(mid), predicate="dwithin", distance=tol)
+    if len(ei) == 0:
+        return out
+    sv = seg[si, 1] - seg[si, 0]
+    sv = sv / np.maximum(np.hypot(sv[:, 0], sv[:, 1]), 1e-12)[:, None]
+    par = np.abs(np.einsum("ij,ij->i", u[ei], sv)) > _PARALLEL
+    out[ei[par]] = True
+    return out
+
+
+def _transform_segments(pose: Pose, seg: np.ndarray) -> np.ndarray:
+    return transform_points(pose, seg.reshape(-1, 2)).reshape(-1, 2, 2)
+
+
+class AsrBuilder:
+    """The growing polygon, labels and exits of one ASR; ``asr`` is the record it keeps current."""
+
+    def __init__(self, asr_id: int, created: float, origin: Pose, params: MapperParams):
+        self.p = params
+        self.asr = ASR(asr_id, created, origin, np.zeros((0, 2)), [], (0.0, 0.0))
+        self.polygon = shapely.Polygon()
+        self.surfaces = np.zeros((0, 2, 2))
+        self.exit_segments = np.zeros((0, 2, 2))
+        self.viewpoints: list[Pose] = []
+        self._last_viewpoint: Pose | None = None
+        self._next_exit = 0
+
+    def add_view(self, view: View, pose: Pose) -> bool:
+        """Union the view seen from ``pose`` (ASR frame) into the ASR; True when the ASR changed."""
+        p = self.p
+        robot = shapely.Point(pose[:2])
+        vpoly = shapely.transform(view.polygon, lambda c: transform_points(pose, c))
+        pieces = [vpoly]
+        if self._last_viewpoint is not None:
+            path = shapely.LineString([self._last_viewpoint[:2], pose[:2]])
+            pieces.append(path.buffer(p.rear_closure, quad_segs=2))
+        self._last_viewpoint = pose
+        self.asr.scans += 1
+        world_surfaces = _transform_segments(pose, view.surfaces)
+        gates = self._gates(world_surfaces)
+        if gates is not None:
+            pieces = [shapely.difference(q, gates) for q in pieces]
+        grown = shapely.union_all([self.polygon, *pieces])
+        if self.polygon.area > 0 and grown.area - self.polygon.area < p.min_area_gain:
+            self._record(pose, robot)
+            return False
+        self.polygon = self._single_ring(grown, robot)
+        self.surfaces = np.concatenate([self.surfaces, world_surfaces])
+        self.exit_segments = np.concatenate([self.exit_segments, _transform_segments(pose, view.exits)])
+        self._record(pose, robot)
+        self._relabel()
+        return True
+
+    def _record(self, pose: Pose, robot: shapely.Point) -> None:
+        """Keep ``pose`` as a viewpoint of this ASR if the ASR holds it (and there is room)."""
+        if len(self.viewpoints) < self.p.max_viewpoints and self.polygon.covers(robot):
+            self.viewpoints.append(pose)
+
+    def open_exit(self, at: tuple[float, float]) -> Exit:
+        """Open an exit where the robot left through a non-exit edge (ASR frame, m).
+
+        The robot may leave through an ``unknown`` edge (unexplored periphery) or where the views
+        never showed a gap: that place is an exit, ``passage_width`` wide along the boundary,
+        centred on the point ``at`` nearest to where the robot left.
+        """
+        ring = self.polygon.exterior
+        d = ring.project(shapely.Point(at))
+        h = 0.5 * self.p.passage_width
+        for _ in range(8):  # widen along a bent boundary until the chord is a passage wide
+            a = ring.interpolate((d - h) % ring.length)
+            b = ring.interpolate((d + h) % ring.length)
+            if a.distance(b) >= self.p.passage_width or 2 * h >= ring.length / 2:
+                break
+            h *= 1.25
+        if not ring.is_ccw:
+            a, b = b, a
+        seg = np.array([[[a.x, a.y], [b.x, b.y]]])
+        self.exit_segments = np.concatenate([self.exit_segments, seg])
+        self._relabel()
+        mid = 0.5 * (seg[0, 0] + seg[0, 1])
+        near = min(self.asr.exits, key=lambda e: np.hypot(*(np.asarray(e.midpoint) - mid)), default=None)
+        if near is None or np.hypot(*(np.asarray(near.midpoint) - mid)) > self.p.passage_width:
+            # the boundary bends too much there for an exit edge: record the chord itself
+            near = Exit(f"{self.asr.id}/{self._next_exit}", (a.x, a.y), (b.x, b.y))
+            self._next_exit += 1
+            self.asr.exits.append(near)
+        return near
+
+    def _gates(self, seen: np.ndarray) -> shapely.Geometry | None:
+        """What lies beyond the ASR's exits (minus the ASR): later views must not grow into it.
+
+        Without this the views taken near a doorway, which see through it, would swallow the next
+        room and the robot would never leave the ASR. Each exit's gate is a trapezoid from the exit
+        outward, widening at 45°, ``gate_depth`` deep. An exit that the new view sees covered by
+        surfaces (``seen``, ASR frame) was explained away: it gets no gate, and its stored exit
+        segments are dropped so the boundary there can become surface.
+        """
+        p = self.p
+        gates = []
+        for e in self.asr.exits:
+            a, b = np.asarray(e.a), np.asarray(e.b)
+            ab = b - a
+            w = float(np.hypot(*ab))
+            s = ab / w
+            n = np.array([s[1], -s[0]])  # right of a->b: outside for a counter-clockwise boundary
+            samples = a + np.linspace(0.1, 0.9, 5)[:, None] * ab
+            if (
+                len(seen)
+                and _along(samples, np.repeat(s[None], 5, axis=0), seen, p.label_tolerance).sum() >= 3
+            ):
+                keep = ~_along(
+                    0.5 * (self.exit_segments[:, 0] + self.exit_segments[:, 1]),
+                    np.repeat(s[None], len(self.exit_segments), axis=0),
+                    np.stack([a, b])[None],
+                    p.label_tolerance,
+                )
+                self.exit_segments = self.exit_segments[keep]
+                continue
+            d = p.gate_depth
+            gates.append(shapely.Polygon([a, b, b + d * (n + s), a + d * (n - s)]))
+        if not gates:
+            return None
+        return shapely.difference(shapely.union_all(gates), self.polygon.buffer(p.simplify_tolerance))
+
+    def _single_ring(self, g: shapely.Geometry, robot: shapely.Point) -> shapely.Polygon:
+        """Valid, one ring, simplified, no holes: the part holding the ASR's origin (the first
+        viewpoint, so earlier viewpoints are never cut off), or the robot for the first view."""
+        g = g if g.is_valid else shapely.make_valid(g)
+        parts = [q for q in shapely.get_parts(g) if isinstance(q, shapely.Polygon) and q.area > 0]
+        if not parts:
+            return self.polygon
+        anchor = shapely.Point(0.0, 0.0) if self.polygon.area > 0 else robot
+        holding = [q for q in parts if q.covers(anchor)]
+        poly = max(holding or parts, key=lambda q: q.area)
+        poly = shapely.Polygon(poly.exterior)
+        simple = poly.simplify(self.p.simplify_tolerance, preserve_topology=True)
+        return valid_polygon(np.asarray(simple.exterior.coords)[:-1]) if not simple.is_valid else simple
+
+    def _ring(self) -> np.ndarray:
+        """Boundary vertices (V, 2), counter-clockwise, not closed, exit endpoints inserted."""
+        ring = self.polygon.exterior
+        v = np.asarray(ring.coords)[:-1]
+        if not ring.is_ccw:
+            v = v[::-1]
+        if len(self.exit_segments) == 0:
+            return v
+        x = self.exit_segments.reshape(-1, 2)
+        edges = np.stack([v, np.roll(v, -1, axis=0)], axis=1)
+        d = _seg_distance(x, edges)
+        e = np.argmin(d, axis=1)
+        a, b = edges[e, 0], edges[e, 1]
+        ab = b - a
+        t = np.einsum("ij,ij->i", x - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-18)
+        near_vertex = np.minimum(np.hypot(*(x - a).T), np.hypot(*(x - b).T)) < self.p.simplify_tolerance
+        ok = (d[np.arange(len(x)), e] < self.p.label_tolerance) & (t > 0) & (t < 1) & ~near_vertex
+        if not ok.any():
+            return v
+        e, t = e[ok], t[ok]
+        order = np.lexsort((t, e))
+        e, t = e[order], t[order]
+        pts = a[ok][order] + t[:, None] * ab[ok][order]
+        # drop insertions that coincide with one another (the two ends of abutting exits)
+        keep = np.append(True, np.hypot(*np.diff(pts, axis=0).T) > self.p.simplify_tolerance)
+        return np.insert(v, e[keep] + 1, pts[keep], axis=0)
+
+    def _relabel(self) -> None:
+        p = self.p
+        v = self._ring()
+        nxt = np.roll(v, -1, axis=0)
+        mid = 0.5 * (v + nxt)
+        d = nxt - v
+        u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
+        is_exit = _along(mid, u, self.exit_segments, p.label_tolerance)
+        is_surface = _along(mid, u, self.surfaces, p.label_tolerance) & ~is_exit
+        labels = np.where(is_exit, "exit", np.where(is_surface, "surface", "unknown")).astype(object)
+        exits = self._exit_runs(v, labels)
+        self._prune()
+        centroid = self.polygon.centroid
+        if self.polygon.contains(centroid):
+            centre, rule = centroid, "centroid"
+        else:
+            centre, rule = self.polygon.point_on_surface(), "point_on_surface"
+        a = self.asr
+        a.boundary, a.edges = v, labels.tolist()
+        a.centre, a.centre_rule = (float(centre.x), float(centre.y)), rule
+        a.exits = self._keep_ids(exits)
+
+    def _exit_runs(self, v: np.ndarray, labels: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Maximal runs of exit edges as (a, b) segments; too-narrow runs are relabelled unknown."""
+        n = len(labels)
+        ex = labels == "exit"
+        if not ex.any():
+            return []
+        if ex.all():
+            return [(v[0], v[0])]
+        start = int(np.flatnonzero(~ex)[0])  # rotate so that no run wraps around
+        runs, i = [], 0
+        while i < n:  # one step per boundary edge of the (simplified) ring
+            j = (start + i) % n
+            if ex[j]:
+                k = i
+                while k < n and ex[(start + k) % n]:
+                    k += 1
+                first, last = j, (start + k) % n
+                if np.hypot(*(v[last] - v[first])) >= self.p.passage_width:
+                    runs.append((v[first], v[last]))
+                else:
+                    for m in range(i, k):
+                        labels[(start + m) % n] = "unknown"
+                i = k
+            else:
+                i += 1
+        return runs
+
+    def _prune(self) -> None:
+        """Drop stored segments that lie inside the polygon: they can never be boundary again."""
+        tol = self.p.label_tolerance
+        ring = self.polygon.exterior
+        for name in ("surfaces", "exit_segments"):
+            seg = getattr(self, name)
+            if len(seg) == 0:
+                continue
+            mid = shapely.points(0.5 * (seg[:, 0] + seg[:, 1]))
+            near = shapely.distance(mid, ring) < tol + 0.5 * np.hypot(*(seg[:, 1] - seg[:, 0]).T)
+            setattr(self, name, seg[near])
+
+    def _keep_ids(self, runs: list[tuple[np.ndarray, np.ndarray]]) -> list[Exit]:
+        old = list(self.asr.exits)
+        out = []
+        for a, b in runs:
+            mid = 0.5 * (a + b)
+            width = float(np.hypot(*(b - a)))
+            best, best_d = None, max(0.5, 0.5 * width)
+            for e in old:
+                dd = float(np.hypot(*(np.asarray(e.midpoint) - mid)))
+                if dd < best_d:
+                    best, best_d = e, dd
+            if best is not None:
+                old.remove(best)
+                out.append(Exit(best.id, (float(a[0]), float(a[1])), (float(b[0]), float(b[1])), best.to))
+            else:
+                out.append(
+                    Exit(
+                        f"{self.asr.id}/{self._next_exit}",
+                        (float(a[0]), float(a[1])),
+                        (float(b[0]), float(b[1])),
+                    )
+                )
+                self._next_exit += 1
+        return out

@@ -1,0 +1,215 @@
+r"""Localisation inside the current ASR (method.md §6): odometry, Röfer histogram matching, Kalman filter.
+
+State :math:`\mathbf{x} = (x, y, \theta)` is the robot pose in the **ASR frame** (m, m, rad), with
+covariance :math:`P`, in a filterpy :class:`~filterpy.kalman.KalmanFilter` (``dim_x = dim_z = 3``).
+
+**Prediction.** The odometry increment :math:`\delta = o_{k-1}^{-1} \oplus o_k` (robot frame) moves
+the pose to :math:`\hat{\mathbf{x}} = \mathbf{x} \oplus \delta`; filterpy's ``predict`` is given
+:math:`F = I`, :math:`B = I` and :math:`u = \hat{\mathbf{x}} - \mathbf{x}` (angle wrapped), so
+:math:`P \leftarrow P + Q` with :math:`Q = \mathrm{diag}(\sigma_t^2, \sigma_t^2, \sigma_r^2)`,
+:math:`\sigma_t = \sigma_{t0} + k_t |\delta_{xy}|`, :math:`\sigma_r = \sigma_{r0} + k_r |\delta_\theta|
++ k_t |\delta_{xy}|` (the pose is so close to linear over one scan that an EKF Jacobian changes nothing).
+
+**Measurement (Röfer 2002, "Using histogram correlation to create consistent laser scan maps").**
+The reference is the ASR's first viewpoint scan plus its ``reference_scans`` latest ones, as points
+in the ASR frame.
+
+1. *Rotation.* Directions :math:`\phi` of the vectors between scan points a few beams apart
+   (at most ``direction_max_gap`` apart) are histogrammed modulo 180° in 1° bins, lightly smoothed:
+   :math:`H_c` for the scan (directions taken in the ASR frame at the predicted :math:`\hat\theta`),
+   :math:`H_r` for the reference. The circular cross-correlation
+   :math:`C(s) = \sum_b H_c(b) H_r(b + s)` over :math:`|s| \le` ``max_rotation`` peaks at
+   :math:`s^*` (refined by a parabola through the peak): :math:`\theta_m = \hat\theta + s^* \Delta`.
+2. *Translation.* The reference's main direction :math:`\alpha` is the peak of :math:`H_r`. Scan
+   points placed at :math:`(\hat x, \hat y, \theta_m)` and the reference points are rotated by
+   :math:`-\alpha` to coordinates :math:`(u, v)`; histograms of u and of v (``xy_bin``) are
+   cross-correlated over :math:`|s| \le` ``max_translation``: peaks :math:`s_u, s_v` give the
+   correction :math:`R(\alpha)(s_u, s_v)^T` and :math:`(x_m, y_m)`.
+3. *Quality.* Each correlation's quality is its normalised peak
+   :math:`q = C(s^*) / \sqrt{\sum H_c^2 \sum H_r^2}` (cosine similarity, 0..1).
+   :math:`R = \mathrm{diag}(\sigma_{xy}^2/q_u^2, \sigma_{xy}^2/q_v^2)` in the (u, v) axes, rotated
+   to (x, y) by :math:`\alpha`, and :math:`\sigma_\theta^2/q_\theta^2` for the angle: an axis
+   without structure (along a corridor) gets a low q and hardly moves the estimate. An axis with
+   :math:`q <` ``min_quality`` is not measured (variance 1e6); a rotation with
+   :math:`q_\theta <` ``min_quality`` rejects the whole match.
+
+**Update and gate.** Innovation :math:`\mathbf{y} = \mathbf{z} - \hat{\mathbf{x}}` (angle wrapped),
+:math:`S = P + R`; the match is rejected when :math:`\mathbf{y}^T S^{-1} \mathbf{y} >` ``gate_chi2``,
+else filterpy's ``update(z, R)`` (:math:`H = I`) fuses it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+
+from mapper.params import MapperParams
+from mapper.se2 import Pose, compose, transform_points, wrap
+
+_STRIDE = 4  # beams between the two points of a direction sample: ~0.1-0.3 m baseline indoors
+_SMOOTH = np.array([1.0, 2.0, 3.0, 2.0, 1.0]) / 9.0
+_NOT_MEASURED = 1e6
+
+
+@dataclass(frozen=True, slots=True)
+class Match:
+    """One histogram match: measured pose (ASR frame), qualities (0..1), and whether it was fused."""
+
+    pose: Pose
+    q_theta: float
+    q_u: float
+    q_v: float
+    accepted: bool
+    reason: str
+
+
+def _directions(xy: np.ndarray, max_gap: float) -> np.ndarray:
+    """Undirected directions (rad, in [0, pi)) between points ``_STRIDE`` apart in the sweep."""
+    if len(xy) <= _STRIDE:
+        return np.zeros(0)
+    d = xy[_STRIDE:] - xy[:-_STRIDE]
+    n = np.hypot(d[:, 0], d[:, 1])
+    ok = (n > 0.05) & (n < max_gap)
+    return np.mod(np.arctan2(d[ok, 1], d[ok, 0]), np.pi)
+
+
+def _hist_circular(angles: np.ndarray, nbins: int) -> np.ndarray:
+    b = np.floor(angles * (nbins / np.pi)).astype(int) % nbins
+    h = np.bincount(b, minlength=nbins).astype(float)
+    # circular smoothing: direction noise spreads a wall over a few bins
+    hp = np.concatenate([h[-2:], h, h[:2]])
+    return np.convolve(hp, _SMOOTH, mode="valid")
+
+
+def _peak(c: np.ndarray) -> float:
+    """Index of the maximum of c refined by a parabola through it and its neighbours."""
+    i = int(np.argmax(c))
+    if 0 < i < len(c) - 1:
+        den = c[i - 1] - 2.0 * c[i] + c[i + 1]
+        if den < 0:
+            return i + 0.5 * (c[i - 1] - c[i + 1]) / den
+    return float(i)
+
+
+def _quality(peak: float, a: np.ndarray, b: np.ndarray) -> float:
+    den = math.sqrt(float(a @ a) * float(b @ b))
+    return float(peak / den) if den > 0 else 0.0
+
+
+def _rot(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s], [s, c]])
+
+
+class Localiser:
+    """Pose of the robot in the current ASR frame; see the module docstring for the maths."""
+
+    def __init__(self, params: MapperParams):
+        self.p = params
+        self.kf = KalmanFilter(dim_x=3, dim_z=3)
+        self._nb = round(math.pi / params.angle_bin)
+        w = math.ceil(params.max_rotation / params.angle_bin)
+        self._rot_shifts = np.arange(-w, w + 1)
+        self._rot_index = (np.arange(self._nb)[None, :] + self._rot_shifts[:, None]) % self._nb
+        self._tw = math.ceil(params.max_translation / params.xy_bin)
+        self.reset()
+
+    def reset(self, pose: Pose = (0.0, 0.0, 0.0)) -> None:
+        """Start over in a new ASR frame at ``pose`` (its creating scan: the frame's origin)."""
+        self.kf.x = np.array(pose, dtype=float)
+        self.kf.P = np.diag([1e-6, 1e-6, 1e-8])
+        self._refs: list[np.ndarray] = []
+        self._ref_ready = False
+
+    @property
+    def pose(self) -> Pose:
+        x = self.kf.x
+        return (float(x[0]), float(x[1]), wrap(float(x[2])))
+
+    def predict(self, delta: Pose) -> Pose:
+        """Move by the odometry increment ``delta`` (robot frame: m, m, rad); returns the prediction."""
+        p = self.p
+        cur = self.pose
+        new = compose(cur, delta)
+        u = np.array([new[0] - cur[0], new[1] - cur[1], wrap(new[2] - cur[2])])
+        trans = math.hypot(delta[0], delta[1])
+        st = p.odom_sigma_floor_xy + p.odom_sigma_per_m * trans
+        sr = p.odom_sigma_floor_theta + p.odom_sigma_per_rad * abs(delta[2]) + p.odom_sigma_per_m * trans
+        self.kf.predict(u=u, B=np.eye(3), F=np.eye(3), Q=np.diag([st * st, st * st, sr * sr]))
+        self.kf.x[2] = wrap(float(self.kf.x[2]))
+        return self.pose
+
+    def add_reference(self, xy: np.ndarray, pose: Pose) -> None:
+        """Add a viewpoint scan (points ``xy`` (K, 2), robot frame) seen from ``pose`` (ASR frame)."""
+        pts = transform_points(pose, xy)
+        if self._refs and len(self._refs) > self.p.reference_scans:
+            del self._refs[1]  # keep the first (anchors the frame) and the latest ones
+        self._refs.append(pts)
+        self._build_reference()
+
+    def _build_reference(self) -> None:
+        p = self.p
+        dirs = np.concatenate([_directions(r, p.direction_max_gap) for r in self._refs])
+        pts = np.concatenate(self._refs)
+        if len(dirs) < 10 or len(pts) < 10:
+            self._ref_ready = False
+            return
+        self._hr = _hist_circular(dirs, self._nb)
+        self._alpha = (_peak(self._hr) + 0.5) * p.angle_bin
+        uv = pts @ _rot(self._alpha)  # rows rotated by -alpha
+        self._uv0 = uv.min(axis=0) - p.max_translation
+        nb = np.floor((uv.max(axis=0) + p.max_translation - self._uv0) / p.xy_bin).astype(int) + 1
+        self._nuv = nb
+        b = np.floor((uv - self._uv0) / p.xy_bin).astype(int)
+        self._hu = np.bincount(b[:, 0], minlength=nb[0]).astype(float)
+        self._hv = np.bincount(b[:, 1], minlength=nb[1]).astype(float)
+        self._ref_ready = True
+
+    def correct(self, xy: np.ndarray) -> Match | None:
+        """Match the scan points ``xy`` (K, 2, robot frame) to the reference; fuse if good."""
+        if not self._ref_ready or len(xy) < 10:
+            return None
+        p = self.p
+        x, y, th = self.pose
+        dirs = _directions(xy, p.direction_max_gap)
+        if len(dirs) < 10:
+            return None
+        hc = _hist_circular(np.mod(dirs + th, np.pi), self._nb)
+        c = self._hr[self._rot_index] @ hc
+        s = _peak(c)
+        q_th = _quality(float(c.max()), hc, self._hr)
+        th_m = wrap(th + (s - (len(c) - 1) / 2.0) * p.angle_bin)
+        if q_th < p.min_quality:
+            return Match((x, y, th_m), q_th, 0.0, 0.0, False, "rotation quality")
+
+        uv = transform_points((x, y, th_m), xy) @ _rot(self._alpha)
+        b = np.floor((uv - self._uv0) / p.xy_bin).astype(int)
+        shifts, qs = [], []
+        for axis, href in ((0, self._hu), (1, self._hv)):  # two axes, not a per-beam loop
+            bi = b[:, axis]
+            bi = bi[(bi >= 0) & (bi < len(href))]
+            hc_ax = np.bincount(bi, minlength=len(href)).astype(float)
+            tw = self._tw
+            cc = np.correlate(np.pad(href, tw), hc_ax, mode="valid")
+            shifts.append((_peak(cc) - tw) * p.xy_bin)
+            qs.append(_quality(float(cc.max()), hc_ax, href))
+        corr = _rot(self._alpha) @ np.array(shifts)
+        z = np.array([x + corr[0], y + corr[1], th_m])
+        var_uv = [(p.match_sigma_xy / q) ** 2 if q >= p.min_quality else _NOT_MEASURED for q in qs]
+        ra = _rot(self._alpha)
+        r = np.zeros((3, 3))
+        r[:2, :2] = ra @ np.diag(var_uv) @ ra.T
+        r[2, 2] = (p.match_sigma_theta / q_th) ** 2
+        z[2] = th + wrap(z[2] - th)
+        innov = z - self.kf.x
+        innov[2] = wrap(float(innov[2]))
+        d2 = float(innov @ np.linalg.solve(self.kf.P + r, innov))
+        pose_m = (float(z[0]), float(z[1]), wrap(float(z[2])))
+        if d2 > p.gate_chi2:
+            return Match(pose_m, q_th, qs[0], qs[1], False, f"gate (d2 {d2:.1f})")
+        self.kf.update(z, R=r, H=np.eye(3))
+        self.kf.x[2] = wrap(float(self.kf.x[2]))
+        return Match(pose_m, q_th, qs[0], qs[1], True, "ok")

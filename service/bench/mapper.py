@@ -1,0 +1,84 @@
+"""``asrmap bench mapper``: per-scan time of the mapper core over the 5505 Intel raw scans.
+
+The whole core per scan (points, localisation, and on viewpoint scans line extraction, exits, the
+view polygon and the ASR union), timed around ``Mapper.add_scan`` on one core; the log is parsed
+before timing. Prints median, p99, max, scans/s and the real-time factor (log duration / compute
+time), then each stage's median and p99 over the scans that ran it, and the cost of extraction +
+exits + view on *every* scan (as if each scan were a viewpoint).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from mapper.exits import find_covers
+from mapper.lines import extract_surfaces, scan_points
+from mapper.mapper import Mapper
+from mapper.params import MapperParams
+from mapper.types import Scan
+from mapper.view import build_view
+from service.carmen import mapper_inputs
+from service.datasets import log_path
+
+NAME = "mapper"
+HELP = "mapper core per scan (extraction, exits, localisation, ASR update) over the 5505 Intel raw scans"
+LOG = "intel-raw-first5505.clf.gz"
+
+
+def _stats(ms: np.ndarray) -> str:
+    return f"median {np.median(ms):.3f} ms  p99 {np.percentile(ms, 99):.3f} ms  max {ms.max():.3f} ms"
+
+
+def run(args=None) -> dict:
+    items = list(mapper_inputs(log_path(LOG)))
+    if getattr(args, "quick", False):
+        items = items[:1600]
+    params = MapperParams(laser_x=0.0, laser_y=0.0)  # the log's ranges are relative to the robot centre
+    m = Mapper(params)
+    per_scan, stages = [], {}
+    scans = [i for i in items if isinstance(i, Scan)]
+    for item in items:
+        if isinstance(item, Scan):
+            tic = time.perf_counter()
+            m.add_scan(item)
+            per_scan.append(time.perf_counter() - tic)
+            for k, v in m.timing.items():
+                stages.setdefault(k, []).append(v)
+        else:
+            m.add_odometry(item)
+    ms = np.asarray(per_scan) * 1e3
+    duration = scans[-1].t - scans[0].t
+    total = ms.sum() / 1e3
+    out = {
+        "scans": len(ms),
+        "median_ms": float(np.median(ms)),
+        "p99_ms": float(np.percentile(ms, 99)),
+        "max_ms": float(ms.max()),
+        "scans_per_s": len(ms) / total,
+        "realtime_factor": duration / total,
+        "asrs": len(m.asrs),
+    }
+    print(f"whole core, {len(ms)} scans ({len(m.asrs)} ASRs): {_stats(ms)}")
+    rtf = out["realtime_factor"]
+    print(f"  {out['scans_per_s']:.0f} scans/s; log {duration:.1f} s in {total:.2f} s: {rtf:.0f}x real time")
+    for k, v in stages.items():
+        s = np.asarray(v) * 1e3
+        out[f"{k}_median_ms"] = float(np.median(s))
+        out[f"{k}_p99_ms"] = float(np.percentile(s, 99))
+        print(f"  stage {k:9s} ({len(s):4d} scans): {_stats(s)}")
+    every = []
+    for sc in scans[:: 5 if getattr(args, "quick", False) else 1]:
+        tic = time.perf_counter()
+        surf = extract_surfaces(scan_points(sc, params), params)
+        build_view(surf, params, find_covers(surf, params))
+        every.append(time.perf_counter() - tic)
+    e = np.asarray(every) * 1e3
+    out["view_every_scan_median_ms"] = float(np.median(e))
+    print(f"  extraction+exits+view on every scan: {_stats(e)}")
+    return out
+
+
+if __name__ == "__main__":
+    run()

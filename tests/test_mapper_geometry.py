@@ -1,0 +1,160 @@
+"""Surfaces, exits and views on synthetic scans with exact answers (ray-cast in tests/raycast.py).
+
+World frame = the robot's pose (0, 0, 0) unless a test says otherwise; the scans carry the P2DX
+laser offset (x 17 mm, y 8 mm) that the default MapperParams undo.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import shapely
+from raycast import box, cast
+
+from mapper.exits import find_covers
+from mapper.lines import extract_surfaces, scan_points
+from mapper.mapper import Mapper
+from mapper.params import MapperParams
+from mapper.se2 import transform_points
+from mapper.types import Odometry
+from mapper.view import build_view
+
+P = MapperParams()
+LASER = (P.laser_x, P.laser_y)
+WALL = 0.15  # wall thickness (m)
+
+
+def _view(walls, pose=(0.0, 0.0, 0.0), **kw):
+    scan = cast(walls, pose, laser=LASER, **kw)
+    surf = extract_surfaces(scan_points(scan, P), P)
+    return surf, build_view(surf, P, find_covers(surf, P))
+
+
+def _world(pose, segs):
+    return transform_points(pose, np.asarray(segs).reshape(-1, 2)).reshape(-1, 2, 2)
+
+
+def _doorway_world():
+    """Room x in [-1, 2.5], y in [-2, 2] with a 0.9 m doorway (y in [-0.45, 0.45]) in its x = 2.5 wall,
+    and a second room x in [2.65, 6], y in [-3, 3] behind it."""
+    x, t = 2.5, WALL
+    room = [
+        ((-1, -2), (x, -2)),
+        ((x, -2), (x, -0.45)),
+        ((x, 0.45), (x, 2)),
+        ((x, 2), (-1, 2)),
+        ((-1, 2), (-1, -2)),
+    ]
+    jambs = [((x, -0.45), (x + t, -0.45)), ((x, 0.45), (x + t, 0.45))]
+    second = [((x + t, -0.45), (x + t, -3)), ((x + t, 0.45), (x + t, 3)), ((6, -3), (6, 3))]
+    second += [((x + t, -3), (6, -3)), ((x + t, 3), (6, 3))]
+    return room + jambs + second
+
+
+def _matches(seg, a, b, tol):
+    a, b = np.asarray(a), np.asarray(b)
+    d1 = max(np.hypot(*(seg[0] - a)), np.hypot(*(seg[1] - b)))
+    d2 = max(np.hypot(*(seg[0] - b)), np.hypot(*(seg[1] - a)))
+    return min(d1, d2) <= tol
+
+
+def test_straight_wall_is_one_surface():
+    surf, _ = _view([((2, -5), (2, 5))])
+    assert len(surf) == 1
+    assert np.allclose(surf.segments[0, :, 0], 2.0, atol=0.01)
+
+
+@pytest.mark.parametrize("pose", [(0.0, 0.0, 0.0), (0.3, -0.6, 0.2), (0.0, 1.0, -0.3)])
+def test_room_with_one_doorway_gives_one_exit_at_the_doorway(pose):
+    _, view = _view(_doorway_world(), pose)
+    exits = _world(pose, view.exits)
+    assert len(exits) == 1
+    assert _matches(exits[0], (2.5, -0.45), (2.5, 0.45), 0.05), exits[0]
+
+
+def test_second_room_seen_through_the_doorway_is_eliminated():
+    surf, view = _view(_doorway_world())
+    assert (surf.segments[..., 0] > 2.7).any()  # the scan does see the second room...
+    assert (view.surfaces[..., 0] <= 2.5 + 0.05).all()  # ...but no surface of it is in the view
+    assert view.polygon.bounds[2] <= 2.5 + 0.05
+    assert "exit" in view.labels
+
+
+def test_table_legs_0_3_m_apart_give_no_exit():
+    # a table (legs 4 cm thick, 0.3 m apart) across a 1.2 m wide alcove: the only way on is between legs
+    legs = []
+    for cy in (-0.45, -0.15, 0.15, 0.45):
+        legs += box(2.0 - 0.02, cy - 0.02, 2.0 + 0.02, cy + 0.02)
+    walls = [
+        ((-1, -2), (2, -2)),
+        ((2, -2), (2, -0.6)),
+        ((2, 0.6), (2, 2)),
+        ((2, 2), (-1, 2)),
+        ((-1, 2), (-1, -2)),
+    ]
+    walls += [((2, -0.6), (3, -0.6)), ((2, 0.6), (3, 0.6)), ((3, -0.6), (3, 0.6))]
+    _, view = _view(walls + legs)
+    assert len(view.exits) == 0
+    # what lies behind the legs is cut off by the closed gaps between them
+    assert not view.polygon.contains(shapely.Point(2.5, 0.0))
+    assert view.polygon.contains(shapely.Point(1.5, 0.0))
+
+
+def test_t_junction_gives_exits_where_the_side_corridors_open():
+    # stem corridor y in [-1.2, 1.2] up to x = 4; the 1.5 m wide cross corridor x in [4, 5.5] runs along y.
+    # 0.5° beams from 2.5 m before the junction: the stem walls' last returns lie within 3 cm of
+    # the corners (an occluding end is only as exact as the beam spacing where it is seen).
+    walls = [((-1, -1.2), (4, -1.2)), ((4, -1.2), (4, -8)), ((-1, 1.2), (4, 1.2)), ((4, 1.2), (4, 8))]
+    walls += [((5.5, -8), (5.5, 8)), ((-1, -1.2), (-1, 1.2))]
+    pose = (1.5, 0.0, 0.0)
+    _, view = _view(walls, pose, n=361)
+    exits = _world(pose, view.exits)
+    assert len(exits) == 2
+    right = [e for e in exits if e[:, 1].mean() < 0]
+    left = [e for e in exits if e[:, 1].mean() > 0]
+    assert len(right) == 1 and len(left) == 1
+    assert _matches(right[0], (4, -1.2), (5.5, -1.2), 0.05), right
+    assert _matches(left[0], (4, 1.2), (5.5, 1.2), 0.05), left
+
+
+def test_every_view_edge_is_labelled_and_the_rear_is_unknown():
+    _, view = _view(_doorway_world())
+    assert len(view.labels) == len(view.vertices)
+    assert set(view.labels) <= {"surface", "exit", "unknown"}
+    rear = int(np.argmin(view.vertices[:, 0]))
+    assert view.labels[rear] == "unknown" and view.labels[rear - 1] == "unknown"
+    assert view.polygon.is_valid and view.polygon.contains(shapely.Point(0, 0))
+
+
+def test_full_turn_in_place_closes_the_room():
+    room = box(-2, -1.5, 3, 2.5)  # 20 m² of free space
+    m = Mapper(MapperParams())
+    steps = 40
+    for i in range(steps + 1):
+        th = math.remainder(2 * math.pi * i / steps, 2 * math.pi)
+        t = 0.1 * i
+        m.add_odometry(Odometry(t, 0.0, 0.0, th))
+        m.add_scan(cast(room, (0.0, 0.0, th), laser=LASER, t=t))
+    assert len(m.asrs) == 1
+    asr = m.asrs[m.current]
+    assert "unknown" not in asr.edges, asr.edges
+    assert asr.exits == []
+    assert asr.area == pytest.approx(20.0, rel=0.05)
+    assert asr.polygon.is_valid
+
+
+def test_asr_exit_ids_are_stable_as_the_robot_looks_around():
+    m = Mapper(MapperParams())
+    world = _doorway_world()
+    ids = []
+    for i, th in enumerate(np.linspace(-0.4, 0.4, 9)):
+        m.add_odometry(Odometry(0.1 * i, 0.0, 0.0, float(th)))
+        m.add_scan(cast(world, (0.0, 0.0, float(th)), laser=LASER, t=0.1 * i))
+        ids.append([e.id for e in m.asrs[1].exits])
+    assert ids[-1] == ["1/0"]
+    assert all(i == ["1/0"] for i in ids)
+    e = m.asrs[1].exits[0]
+    frame = (0.0, 0.0, -0.4)  # the ASR frame is the robot pose at the first scan
+    assert _matches(_world(frame, [e.a, e.b])[0], (2.5, -0.45), (2.5, 0.45), 0.05)

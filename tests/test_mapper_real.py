@@ -1,0 +1,74 @@
+"""The mapper core on the real Intel Research Lab raw log (intel-raw-first5505.clf.gz)."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+import shapely
+
+from mapper.mapper import Mapper
+from mapper.params import MapperParams
+from mapper.types import Scan
+from service.carmen import mapper_inputs
+
+# the log's ranges are relative to the robot centre (PARAM robot_frontlaser_offset 0.0)
+LOG_PARAMS = MapperParams(laser_x=0.0, laser_y=0.0)
+
+
+def _run(path, max_scans: int) -> tuple[Mapper, int, list]:
+    m = Mapper(LOG_PARAMS)
+    n, events = 0, []
+    for item in mapper_inputs(path):
+        if isinstance(item, Scan):
+            if n == max_scans:
+                break
+            events += m.add_scan(item)
+            n += 1
+        else:
+            m.add_odometry(item)
+    return m, n, events
+
+
+def _check_asrs(m: Mapper) -> None:
+    for aid, asr in m.asrs.items():
+        poly = asr.polygon
+        assert poly.is_valid, f"ASR {aid} polygon invalid"
+        assert shapely.LinearRing(asr.boundary).is_ccw
+        assert len(asr.edges) == len(asr.boundary)
+        assert set(asr.edges) <= {"surface", "exit", "unknown"}
+        for vp in m.viewpoints(aid):
+            assert poly.buffer(1e-6).contains(shapely.Point(vp[:2])), f"ASR {aid} misses viewpoint {vp}"
+        for e in asr.exits:
+            assert re.fullmatch(rf"{aid}/\d+", e.id)
+            assert e.width >= LOG_PARAMS.passage_width - 1e-9
+        assert shapely.Point(asr.centre).within(poly.buffer(1e-6))
+        assert asr.centre_rule in ("centroid", "point_on_surface")
+
+
+def _check_events(m: Mapper, events: list) -> None:
+    created = [e for e in events if e.kind == "asr_created"]
+    crossed = [e for e in events if e.kind == "exit_crossed"]
+    assert len(created) == len(m.asrs)
+    assert len(crossed) == len(m.asrs) - 1  # a chain: every ASR after the first was entered through an exit
+    for e in crossed:
+        assert e.to_asr == e.from_asr + 1 and e.new
+
+
+def test_first_800_intel_scans_build_valid_asrs(shared_data):
+    m, n, events = _run(shared_data / "intel-raw-first5505.clf.gz", 800)
+    assert n == 800
+    _check_asrs(m)
+    _check_events(m, events)
+
+
+@pytest.mark.slow
+def test_all_5505_intel_scans_build_valid_asrs(shared_data):
+    m, n, events = _run(shared_data / "intel-raw-first5505.clf.gz", 10**9)
+    assert n == 5505
+    assert len(m.asrs) > 3
+    _check_asrs(m)
+    _check_events(m, events)
+    areas = np.array([a.area for a in m.asrs.values()])
+    print(f"{len(m.asrs)} ASRs, area median {np.median(areas):.1f} m², max {areas.max():.1f} m²")
