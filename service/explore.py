@@ -170,6 +170,7 @@ class Goal:
     exit: str | None = None
     through: tuple[float, float] | None = None
     path: tuple[int, ...] = ()
+    exit_mid: tuple[float, float] | None = None
 
     @property
     def key(self) -> tuple:
@@ -179,10 +180,12 @@ class Goal:
 @dataclass
 class Memory:
     """What the planner has tried: unknown regions looked at (per ASR, points in its frame) and
-    exits that could not be crossed (``(asr, exit id)``)."""
+    exits that could not be crossed, by ``(asr, exit id)`` and by midpoint (per ASR, its frame),
+    since the mapper may renumber the exits of an ASR that grows."""
 
     looked: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
     failed_exits: set[tuple[int, str]] = field(default_factory=set)
+    failed_at: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
 
 
 def unknown_runs(asr: ASR) -> list[tuple[np.ndarray, float]]:
@@ -270,8 +273,17 @@ class Planner:
     def looked_at(self, asr: int, point: tuple[float, float]) -> None:
         self.memory.looked.setdefault(asr, []).append((float(point[0]), float(point[1])))
 
-    def failed(self, asr: int, exit_id: str) -> None:
+    def failed(self, asr: int, exit_id: str, midpoint: tuple[float, float] | None = None) -> None:
         self.memory.failed_exits.add((asr, exit_id))
+        if midpoint is not None:
+            self.memory.failed_at.setdefault(asr, []).append((float(midpoint[0]), float(midpoint[1])))
+
+    def _failed(self, asr: ASR, ex: Exit) -> bool:
+        if (asr.id, ex.id) in self.memory.failed_exits:
+            return True
+        near = self.memory.failed_at.get(asr.id, ())
+        m = ex.midpoint
+        return any(math.hypot(m[0] - q[0], m[1] - q[1]) < 0.5 for q in near)
 
     # -- queries -------------------------------------------------------------------------------
     def pending_unknown(self, asr: ASR) -> list[tuple[float, float]]:
@@ -289,16 +301,16 @@ class Planner:
 
     def explored(self, view: MapView, asr: ASR, ex: Exit) -> bool:
         """Whether exit ``ex`` of ``asr`` needs no visit (see the module docstring)."""
-        if ex.to is not None or (asr.id, ex.id) in self.memory.failed_exits:
+        if ex.to is not None or self._failed(asr, ex):
             return True
-        if (asr.id, ex.id) in _edges(view):
+        edges = _edges(view)
+        if (asr.id, ex.id) in edges:
             return True
         orig = view.asrs.get(asr.duplicate_of) if asr.duplicate_of is not None else None
         if orig is not None:
             mid = transform_points(asr.origin, np.array([ex.midpoint]))[0]
             for other in orig.exits:
-                if other.to is None and (orig.id, other.id) not in self.memory.failed_exits \
-                        and (orig.id, other.id) not in _edges(view):
+                if other.to is None and not self._failed(orig, other) and (orig.id, other.id) not in edges:
                     continue
                 omid = transform_points(orig.origin, np.array([other.midpoint]))[0]
                 if np.hypot(*(omid - mid)) < self.p.duplicate_radius:
@@ -337,7 +349,7 @@ class Planner:
         through = tuple(float(v) for v in mid + self.p.through_distance * n)
         here = (view.pose[0], view.pose[1])
         return Goal(kind, asr.id, target=_inside_point(free, stage, here), exit=ex.id,  # type: ignore[arg-type]
-                    through=through, path=tuple(path))  # type: ignore[arg-type]
+                    through=through, path=tuple(path), exit_mid=ex.midpoint)  # type: ignore[arg-type]
 
     def backtrack_path(self, view: MapView) -> tuple[tuple[int, ...], str] | None:
         """Shortest route (metres between global centres) from the current ASR to the nearest ASR
@@ -458,6 +470,7 @@ class Explorer:
         self._recovery_until = 0.0
         self._recovery_cmd = (0.0, 0.0)
         self._last: Command | None = None
+        self._unjams: list[float] = []
         self.finished = False
         self.counts = {"goals": 0, "unknown": 0, "exits": 0, "backtracks": 0, "stuck": 0, "failed": 0,
                        "unjam": 0}
@@ -484,7 +497,7 @@ class Explorer:
         if g.kind == "unknown" and g.look_at is not None and g.asr is not None:
             self.planner.looked_at(g.asr, g.look_at)
         elif g.exit is not None and g.asr is not None:
-            self.planner.failed(g.asr, g.exit)
+            self.planner.failed(g.asr, g.exit, g.exit_mid)
         self.goal = None
 
     def _still_valid(self, view: MapView) -> bool:
@@ -510,20 +523,33 @@ class Explorer:
     def step(self, view: MapView, points: np.ndarray, t: float, stalled: bool = False) -> Command:
         """The command for now. ``points``: latest scan returns (N, 2) in the robot frame (m);
         ``stalled``: the robot reports stalled wheels (P2OS stall bits)."""
-        if self._recovery or t < self._recovery_until:
-            return self._recover(points, t)
-        if stalled and self._last is not None and (self._last.v != 0.0 or self._last.w != 0.0):
-            # Something the laser cannot see (behind, beside) blocks the motion: move clear
-            # (forward when the front is free, else back) and carry on with the same goal.
+        self._last = self._command(view, points, t, stalled)
+        return self._last
+
+    def _command(self, view: MapView, points: np.ndarray, t: float, stalled: bool) -> Command:
+        last = self._last
+        moving = last is not None and (last.v != 0.0 or last.w != 0.0)
+        if stalled and moving and (self._recovery or t < self._recovery_until):
+            self._recovery_until = t  # this recovery move is blocked too: on to the next one
+        elif stalled and moving:
+            # Something the laser cannot see (behind, beside) blocks the motion: move clear the
+            # other way and carry on with the same goal; a goal that keeps jamming is given up.
             self.counts["unjam"] += 1
-            d = 1.0 if self._front_free(points) else -1.0
-            if self._last.v != 0.0 and math.copysign(1.0, self._last.v) == d:
-                d = -d
+            self._unjams = [u for u in self._unjams if t - u < self.p.stuck_time] + [t]
+            if len(self._unjams) > 3:
+                self._unjams = []
+                return self._start_recovery(points, t)
+            if last.v > 0.0:
+                d = -1.0
+            elif last.v < 0.0:
+                d = 1.0
+            else:
+                d = 1.0 if self._front_free(points) else -1.0
             p = self.p
             self._queue([(p.recovery_distance / p.recovery_speed, d * p.recovery_speed, 0.0)], t)
+        if self._recovery or t < self._recovery_until:
             return self._recover(points, t)
-        self._last = self._step(view, points, t)
-        return self._last
+        return self._step(view, points, t)
 
     def _step(self, view: MapView, points: np.ndarray, t: float) -> Command:
         if not self._still_valid(view):
