@@ -354,6 +354,71 @@ class _ScaledDrive(DiffDrive):
         super().step(dt * self.speed)
 
 
+class WorldDevices:
+    """Both emulated devices on pty pairs, seeing and moving in ``world``: a
+    :class:`~pioneer.emulator.PioneerEmulator` whose body is the simulated robot and an
+    :class:`~laser.emulator.LMS2xxEmulator` whose ranges are ray cast from the robot's true pose.
+
+    ``speed``: simulated seconds per wall second; the SIP cycle and the scan period are divided by it
+    and the body integrates ``speed`` x the wall time (module docstring). Attributes once started:
+    ``pioneer_path``, ``laser_path`` (pty slaves for any client), ``robot`` (:class:`SimRobot`,
+    ground truth), ``wall0`` (the host time of simulated time 0).
+    """
+
+    def __init__(self, world: World, params: SimParams | None = None, speed: float = 1.0) -> None:
+        self.world = world
+        self.p = params or SimParams()
+        self.speed = float(speed)
+        self.wall0 = time.monotonic()
+        self.robot = SimRobot(world, self.p, self.sim_clock)
+        drive = _ScaledDrive(odometry_error=self.p.odometry_error, motion_hook=self.robot.motion_hook)
+        drive.speed = self.speed
+        self.robot.drive = drive
+        self._stack = contextlib.ExitStack()
+        self.pioneer_path = self.laser_path = ""
+
+    def sim_clock(self) -> float:
+        """Simulated seconds since the start (wall time x speed)."""
+        return self.to_sim(time.monotonic())
+
+    def to_sim(self, t_wall: float) -> float:
+        """A host ``time.monotonic()`` time as simulated time."""
+        return (t_wall - self.wall0) * self.speed
+
+    def start(self) -> WorldDevices:
+        from laser.emulator import LMS2xxEmulator
+        from pioneer.emulator import PioneerEmulator
+        from service.ptys import open_pty
+
+        speed, scan_period, robot = self.speed, self.p.scan_period, self.robot
+
+        class _Laser(LMS2xxEmulator):
+            def _period(self) -> float:  # the world's scan rate, scaled with the world's clock
+                return scan_period / speed
+
+        def ranges(t_wall: float, angles: np.ndarray) -> np.ndarray:
+            return robot.ranges(self.to_sim(t_wall), angles)
+
+        st = self._stack
+        pio_pty, las_pty = st.enter_context(open_pty()), st.enter_context(open_pty())
+        pio = PioneerEmulator(pio_pty.master, body=robot.drive, sip_cycle=self.p.sip_cycle / speed)
+        las = _Laser(las_pty.master, ranges, resolution=self.p.resolution, boot_time=0.05)
+        self.wall0 = time.monotonic()
+        st.enter_context(pio.start())
+        st.enter_context(las.start())
+        self.pioneer_path, self.laser_path = pio_pty.path, las_pty.path
+        return self
+
+    def stop(self) -> None:
+        self._stack.close()
+
+    def __enter__(self) -> WorldDevices:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
 class StackSim:
     """Emulators on ptys + :class:`service.pipeline.Service` + the explorer (see the module docstring).
 
@@ -372,8 +437,8 @@ class StackSim:
         self.progress = progress
         self._tmp = None if state_dir else tempfile.TemporaryDirectory(prefix="asrmap-sim-")
         self.state_dir = state_dir or self._tmp.name  # type: ignore[union-attr]
-        self._wall0 = time.monotonic()
-        self.robot = SimRobot(world, self.p, self.sim_clock)
+        self.devices = WorldDevices(world, self.p, self.speed)
+        self.robot = self.devices.robot
         self.explorer = Explorer(self.p.explore_params) if self.p.explore else None
         self.mapper: LockedMapper | None = None
         self.service = None
@@ -388,10 +453,7 @@ class StackSim:
 
     def sim_clock(self) -> float:
         """Simulated seconds since the start (wall time x speed)."""
-        return (time.monotonic() - self._wall0) * self.speed
-
-    def _wall_to_sim(self, t_wall: float) -> float:
-        return (t_wall - self._wall0) * self.speed
+        return self.devices.sim_clock()
 
     # -- wiring --------------------------------------------------------------------------------------
     def _config(self, pioneer_port: str, laser_port: str):
@@ -432,67 +494,43 @@ class StackSim:
         return self.mapper
 
     def run(self) -> Summary:
-        from laser.emulator import LMS2xxEmulator
-        from pioneer.emulator import PioneerEmulator
         from service.pipeline import Service
-        from service.ptys import open_pty
 
         p = self.p
-        speed = self.speed
-        robot = self.robot
-        drive = _ScaledDrive(odometry_error=p.odometry_error, motion_hook=robot.motion_hook)
-        drive.speed = speed
-        robot.drive = drive
-        pio_pty, las_pty = open_pty(), open_pty()
-        sim_scan_period = p.scan_period
-
-        class _Laser(LMS2xxEmulator):
-            def _period(self) -> float:  # the world's scan rate, scaled with the world's clock
-                return sim_scan_period / speed
-
-        def ranges(t_wall: float, angles: np.ndarray) -> np.ndarray:
-            return robot.ranges(self._wall_to_sim(t_wall), angles)
-
-        pio = PioneerEmulator(pio_pty.master, body=drive, sip_cycle=p.sip_cycle / speed)
-        las = _Laser(las_pty.master, ranges, resolution=p.resolution, boot_time=0.05)
-        cfg = self._config(pio_pty.path, las_pty.path)
-        service = self.service = Service(cfg, open_laser=self._open_laser, new_mapper=self._new_mapper)
         stop = threading.Event()
         result: dict[str, Any] = {}
-
-        def serve() -> None:
-            try:
-                result["status"] = service.run(stop)
-            except BaseException as exc:  # reported by the caller
-                result["error"] = exc
-                stop.set()
-
         limit = p.duration if p.duration is not None else p.max_duration
         finished = False
         odometry = Track()
-        pio.start()
-        las.start()
-        self._wall0 = time.monotonic()
-        thread = threading.Thread(target=serve, name="asrmap-service", daemon=True)
-        thread.start()
-        try:
-            finished = self._drive(service, stop, limit, odometry)
-        finally:
-            stop.set()
-            thread.join(10.0)
-            pio.stop()
-            las.stop()
-            pio_pty.close()
-            las_pty.close()
+        with self.devices as dev:
+            cfg = self._config(dev.pioneer_path, dev.laser_path)
+            service = self.service = Service(cfg, open_laser=self._open_laser, new_mapper=self._new_mapper)
+
+            def serve() -> None:
+                try:
+                    result["status"] = service.run(stop)
+                except BaseException as exc:  # reported by the caller
+                    result["error"] = exc
+                    stop.set()
+
+            thread = threading.Thread(target=serve, name="asrmap-service", daemon=True)
+            thread.start()
+            try:
+                finished = self._drive(service, stop, limit, odometry)
+            finally:
+                stop.set()
+                thread.join(10.0)
         if "error" in result:
             raise result["error"]
         mapper = self.mapper.mapper if self.mapper else None
         doc = map_document(mapper, self.robot_name) if mapper is not None else {"asrs": []}
         # The mapper's clock is the host's monotonic clock: truth is on the simulated one.
-        odo_sim = Track([self._wall_to_sim(t) for t in odometry.t], odometry.poses)
-        doc_sim = _retime(doc, self._wall_to_sim)
-        s = summarise(self.world, doc_sim, robot, odo_sim, self.mapper.entered_from if self.mapper else {},
-                      self.explorer, self.sim_clock(), time.monotonic() - self._wall0, finished)
+        to_sim = self.devices.to_sim
+        odo_sim = Track([to_sim(t) for t in odometry.t], odometry.poses)
+        doc_sim = _retime(doc, to_sim)
+        s = summarise(self.world, doc_sim, self.robot, odo_sim,
+                      self.mapper.entered_from if self.mapper else {}, self.explorer, self.sim_clock(),
+                      time.monotonic() - self.devices.wall0, finished)
         w = service.worker
         if w is not None:
             s.scans = w.counters.get("scans_mapped", 0)

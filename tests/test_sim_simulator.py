@@ -1,0 +1,99 @@
+"""Simulated runs: the robot in a world through the pioneer kinematics, in-process and on the full stack."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from service.cli import main
+from service.sim.simulator import DirectSim, SimParams, SimRobot, StackSim
+from service.sim.world import load_world, parse_world
+
+
+def corridor():
+    return parse_world({"schema": "asrmap/world/1", "start": [1.0, 1.0, 0.0],
+                        "loops": [[[0, 0], [4, 0], [4, 2], [0, 2]]]})
+
+
+def test_the_pioneer_drive_stalls_at_a_wall_and_keeps_ground_truth():
+    t = [0.0]
+    robot = SimRobot(corridor(), SimParams(), lambda: t[0])
+    drive = robot.drive
+    drive.motors_enabled = True
+    drive.set_velocity(0.5)
+    for _ in range(100):
+        t[0] += 0.1
+        drive.step(0.1)
+    assert drive.left_stall and drive.right_stall
+    assert robot.body.pose[0] == pytest.approx(4.0 - 0.210, abs=0.01)  # front against the wall
+    assert robot.true_pose_at(t[0])[0] == pytest.approx(robot.body.pose[0])
+    # Odometry is the emulator's, with its error model: it starts at (0, 0, 0) and does not see the wall.
+    assert drive.odometry_pose[0] == pytest.approx((4.0 - 0.210 - 1.0) * 1.01, abs=0.02)
+
+
+def test_a_short_direct_run_explores_without_touching_anything():
+    sim = DirectSim(load_world("office"), SimParams(duration=60.0))
+    s = sim.run()
+    assert s.sim_time == pytest.approx(60.0, abs=0.2)
+    assert s.contacts == 0
+    assert s.distance > 3.0 and s.asrs >= 1
+    assert s.realtime_factor > 10.0
+    assert "world office" in s.lines()[0]
+
+
+def test_the_full_stack_maps_a_world_through_ptys_drivers_and_the_service():
+    sim = StackSim(load_world("office"), SimParams(duration=25.0), speed=5.0)
+    s = sim.run()
+    assert s.scans > 20
+    assert s.distance > 0.5 and s.contacts == 0
+    assert s.asrs >= 1 and sim.document["asrs"]
+    assert s.realtime_factor > 4.0
+
+
+def test_asrmap_simulate_direct_writes_the_map_and_a_picture(tmp_path, capsys):
+    svg, doc = tmp_path / "m.svg", tmp_path / "m.json"
+    rc = main(["simulate", "--direct", "--world", "aliasing", "--duration", "20",
+               "--svg", str(svg), "--json", str(doc)])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert json.loads(doc.read_text())["schema"] == "asrmap/map/1"
+    assert svg.read_text().lstrip().startswith("<")
+    assert "world aliasing" in out and "cycles detected" in out
+
+
+def test_a_bad_world_is_one_line_on_stderr(tmp_path, capsys):
+    bad = tmp_path / "w.json"
+    bad.write_text('{"schema": "asrmap/world/1", "start": [0, 0]}')
+    assert main(["simulate", "--direct", "--world", str(bad)]) == 2
+    assert "start: expected 3 numbers" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["lab", "office"])
+def test_exploring_a_world_finishes_enters_every_region_and_closes_only_true_cycles(name):
+    s = DirectSim(load_world(name), SimParams(max_duration=3600.0)).run()
+    print("\n".join(s.lines()))
+    assert s.finished
+    assert not s.regions_missed
+    assert s.false_cycles == 0
+    assert s.cycles >= 1 and s.revisits_missed == 0
+
+
+@pytest.mark.slow
+def test_identical_rooms_far_apart_give_no_false_closure():
+    s = DirectSim(load_world("aliasing"), SimParams(max_duration=1800.0)).run()
+    print("\n".join(s.lines()))
+    assert not s.regions_missed
+    assert s.false_cycles == 0
+
+
+@pytest.mark.slow
+def test_asrmap_simulate_fast_runs_at_ten_times_real_time(tmp_path, capsys):
+    rc = main(["simulate", "--world", "lab", "--fast", "--duration", "120",
+               "--svg", str(tmp_path / "m.svg"), "--json", str(tmp_path / "m.json")])
+    out = capsys.readouterr().out
+    assert rc == 0
+    factor = float(out.split("x real time")[0].rsplit("(", 1)[1])
+    assert factor >= 9.5 and not math.isnan(factor)
