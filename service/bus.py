@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import logging
 import queue
+import re
 import struct
 import threading
 from collections.abc import Callable
@@ -112,12 +113,19 @@ def client_config(connect: list[str] | tuple[str, ...]) -> zenoh.Config:
     }))
 
 
+_RUST_SOURCE = re.compile(r"\s+at \S+\.rs:\d+\.?")
+
+
 def open_session(cfg: zenoh.Config, what: str) -> zenoh.Session:
     """``zenoh.open`` with its errors as :class:`BusError` naming ``what`` was being opened."""
     try:
         return zenoh.open(cfg)
     except zenoh.ZError as exc:
-        raise BusError(f"cannot open the zenoh session ({what}): {exc}") from None
+        # zenoh appends the Rust source location of every layer: noise to an operator.
+        reason = _RUST_SOURCE.sub("", str(exc)).strip()
+        if "in use" in reason:
+            reason += "; is another asrmap running? choose another port in [zenoh] listen"
+        raise BusError(f"cannot open the zenoh session ({what}): {reason}") from None
 
 
 def robot_key(robot: str, *chunks: str) -> str:

@@ -151,8 +151,7 @@ class RobotConfig:
 class PioneerConfig:
     port: str = _key(_port, "serial device or pyserial URL of the Pioneer", default="/dev/pioneer")
     baudrate: int = _key(_one_of(9600, 19200, 38400, 57600, 115200), "P2OS baud rate (bit/s)", default=9600)
-    model: str = _key(_one_of("p2dx", "p2de", "p3dx"), "robot model (wheel geometry, SIP scaling)",
-                      default="p2dx")
+    model: str = _key(_one_of("p2dx"), "robot model (wheel geometry, SIP scaling)", default="p2dx")
 
 
 @dataclass(frozen=True)

@@ -296,7 +296,7 @@ class MapperWorker:
         self.busy_since: float | None = None
         self.mapped = Rate()
         self.counters = {"scans_mapped": 0, "scans_without_odometry": 0, "events": 0, "mapper_errors": 0}
-        self.document: dict[str, Any] = self._stamp(mapper.document())
+        self.document: dict[str, Any] = self._stamp(document_of(mapper))
         self.last_pose: dict[str, Any] | None = None
         self._next_pose = 0.0
         self._stop = threading.Event()
@@ -355,7 +355,7 @@ class MapperWorker:
 
     def commit_and_publish(self, events: list[Any]) -> None:
         """Store first, then Zenoh: a subscriber never sees what a crash could lose."""
-        doc = self._stamp(self.mapper.document())
+        doc = self._stamp(document_of(self.mapper))
         synced = self.store.sync(doc)
         self.document = doc
         self.counters["events"] += len(events)
@@ -375,19 +375,33 @@ class MapperWorker:
 
 def make_mapper(cfg: Config, doc: dict[str, Any] | None):
     """A new mapper, or the stored map continued (``Mapper.from_document``)."""
-    from mapper import Mapper
+    from mapper.mapper import Mapper
 
     params = cfg.mapper_params()
     if doc and doc.get("asrs"):
-        log.info("continuing the stored map: %d ASRs", len(doc["asrs"]))
-        return Mapper.from_document(doc, params)
+        if hasattr(Mapper, "from_document"):
+            log.info("continuing the stored map: %d ASRs", len(doc["asrs"]))
+            return Mapper.from_document(doc, params)
+        log.warning("this mapper cannot continue a stored map (no Mapper.from_document): starting a new one")
     return Mapper(params)
+
+
+def document_of(mapper: Any) -> dict[str, Any]:
+    """The mapper's ``asrmap/map/1`` document (its ASRs alone while it has no ``document()``)."""
+    if hasattr(mapper, "document"):
+        return mapper.document()
+    from mapper.document import to_document
+
+    return to_document([mapper.asrs[k] for k in sorted(mapper.asrs)], [], [])
 
 
 def open_pioneer(cfg: Config):
     import pioneer
 
-    return pioneer.Pioneer(cfg.pioneer.port, cfg.pioneer.baudrate)
+    # reconnect=False: as for the laser, the Link reopens a lost Pioneer (odometry stays continuous
+    # through OdometryBuffer.new_session).
+    params = getattr(pioneer, cfg.pioneer.model.upper())
+    return pioneer.Pioneer(cfg.pioneer.port, cfg.pioneer.baudrate, params, reconnect=False)
 
 
 def open_laser(cfg: Config):
@@ -510,14 +524,21 @@ class Service:
         """Run until ``stop`` is set; returns the exit status (0). Raises ``BusError``/``OSError``
         for what the operator must fix (a busy port, an unwritable state directory)."""
         cfg = self.cfg
-        store = MapStore(cfg.store_path)
+        # Zenoh first: a busy port or a bad zenoh file fails before anything else is touched.
+        self.bus = Bus(cfg.robot.name, cfg.zenoh, lambda: self.worker.document if self.worker else None,
+                       self._command)
+        try:
+            store = MapStore(cfg.store_path)
+        except BaseException:
+            self.bus.close()
+            raise
         try:
             mapper = self._new_mapper(cfg, store.load())
             self.worker = MapperWorker(mapper, store, None, self.scans, self.odometry, cfg.robot.name,
                                        1.0 / cfg.publish.pose_rate, cfg.publish.scans)
-            self.bus = Bus(cfg.robot.name, cfg.zenoh, lambda: self.worker.document, self._command)
         except BaseException:
             store.close()
+            self.bus.close()
             raise
         self.worker.bus = self.bus
         try:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import queue
-import socket
 import time
 
 import numpy as np
@@ -13,6 +12,7 @@ import zenoh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from service.bench.service import free_port
 from service.bus import Bus, BusError, CommandRefused, client_config, decode_scan, encode_scan
 from service.config import ZenohConfig
 
@@ -20,12 +20,6 @@ DOC = {"schema": "asrmap/map/1", "robot": "r1",
        "asrs": [{"id": i, "created": float(i), "origin": [0.0, 0.0, 0.0], "boundary": [], "edges": [],
                  "centre": [0.0, 0.0], "exits": [], "duplicate_of": None, "scans": 1} for i in (1, 2, 3)],
        "links": [], "cycles": []}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture

@@ -8,10 +8,11 @@ import subprocess
 import sys
 import time
 
+from service.bench.service import free_port
 from service.bus import Bus
 from service.config import ZenohConfig
 from service.monitor import Monitor, Update, format_update, status_line
-from tests.test_bus import DOC, free_port
+from tests.test_bus import DOC
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

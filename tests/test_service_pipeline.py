@@ -18,12 +18,12 @@ import pytest
 import zenoh
 
 from mapper.events import AsrCreated, AsrUpdated
+from service.bench.service import free_port
 from service.bus import client_config
 from service.config import Config, StoreConfig, WatchdogConfig, ZenohConfig
 from service.notify import Notifier
 from service.pipeline import DropOldest, Link, MapperWorker, OdometryBuffer, Service
 from service.store import MapStore
-from tests.test_bus import free_port
 
 # --- alignment -----------------------------------------------------------------------------------------
 

@@ -1,0 +1,209 @@
+"""``asrmap run`` end to end: the service as a subprocess against the Pioneer and LMS200 emulators on
+ptys (behind udev-like symlinks), watched over Zenoh from this process."""
+
+from __future__ import annotations
+
+import json
+import queue
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from laser.emulator import LMS2xxEmulator
+from laser.sources import room
+from pioneer.emulator import PioneerEmulator
+from service.bench.service import ROOT, PluggedDevice, ServiceProcess, free_port, write_config
+from service.bus import client_config
+
+
+class Rig:
+    """Emulated robot + ``asrmap run`` + a Zenoh session recording events and liveliness."""
+
+    def __init__(self, tmp: Path, plug_laser: bool = True, **extra: dict):
+        self.tmp = tmp
+        self.robot = PluggedDevice(tmp / "pioneer", lambda fd: PioneerEmulator(fd))
+        self.laser = PluggedDevice(tmp / "sick", lambda fd: LMS2xxEmulator(fd, room(), rate_limit=False))
+        if not plug_laser:
+            self.laser.unplug()
+        self.ep = f"tcp/127.0.0.1:{free_port()}"
+        sections = {"robot": {"name": "rig"}, "pioneer": {"port": str(tmp / "pioneer")},
+                    "laser": {"port": str(tmp / "sick")}, "zenoh": {"listen": [self.ep]},
+                    "store": {"state_dir": str(tmp)},
+                    "watchdog": {"reconnect_interval": 0.2, "scan_timeout": 0.5}}
+        for k, v in extra.items():
+            sections[k] = {**sections.get(k, {}), **v}
+        self.config = write_config(tmp / "asrmap.toml", **sections)
+        self.events: queue.Queue = queue.Queue()
+        self.alive: queue.Queue = queue.Queue()
+        self.asrs: queue.Queue = queue.Queue()
+        self.status: queue.Queue = queue.Queue()
+        self.session = zenoh.open(client_config([self.ep]))
+        self._decls = [
+            self.session.declare_subscriber("asrmap/rig/event", self._json(self.events)),
+            self.session.declare_subscriber("asrmap/rig/asr/*", self._json(self.asrs)),
+            self.session.declare_subscriber("asrmap/rig/status", self._json(self.status)),
+            self.session.liveliness().declare_subscriber(
+                "asrmap/rig/alive", lambda s: self.alive.put(s.kind), history=True),
+        ]
+        self.service = ServiceProcess(self.config, tmp)
+
+    @staticmethod
+    def _json(q: queue.Queue):
+        return lambda s: q.put(json.loads(s.payload.to_bytes()))
+
+    def event(self, kind: str, timeout: float = 10.0, **match) -> dict:
+        deadline = time.monotonic() + timeout
+        while (left := deadline - time.monotonic()) > 0:
+            try:
+                e = self.events.get(timeout=left)
+            except queue.Empty:
+                break
+            if e["event"] == kind and all(e.get(k) == v for k, v in match.items()):
+                return e
+        raise AssertionError(f"no {kind} event {match} within {timeout} s\n{self.service.log()[-3000:]}")
+
+    def ready(self) -> None:
+        """READY=1 from the service, and this session connected to it (its token seen)."""
+        self.service.notify.wait_for("READY=1", 20)
+        assert self.alive.get(timeout=10) == zenoh.SampleKind.PUT
+
+    def get(self, selector: str):
+        for r in self.session.get(selector, timeout=5.0):
+            if r.ok:
+                return json.loads(r.ok.payload.to_bytes()), None
+            return None, json.loads(r.err.payload.to_bytes())
+        raise AssertionError(f"no reply to {selector}")
+
+    def close(self) -> None:
+        self.service.close()
+        for d in self._decls:
+            d.undeclare()
+        self.session.close()
+        self.laser.close()
+        self.robot.close()
+
+
+@pytest.fixture
+def rig(tmp_path):
+    r = Rig(tmp_path)
+    yield r
+    r.close()
+
+
+def test_the_service_maps_publishes_and_stops_the_robot_on_sigterm(tmp_path):
+    """Started with the laser unplugged: Zenoh is up first (token, fault), the laser arrives
+    (recovered, READY, the first ASR), and SIGTERM leaves the motors stopped and the laser quiet."""
+    rig = Rig(tmp_path, plug_laser=False)
+    try:
+        assert rig.alive.get(timeout=15) == zenoh.SampleKind.PUT
+        # The first fault may precede this session's connection; the status repeats it.
+        blind = rig.status.get(timeout=5)
+        while blind["laser"]["link"] == "connecting":
+            blind = rig.status.get(timeout=5)
+        assert blind["laser"]["link"] == "fault" and blind["laser"]["reason"].startswith("cannot open")
+        rig.laser.plug()
+        rig.event("recovered", device="laser")
+        rig.service.notify.wait_for("READY=1", 15)
+        created = rig.event("asr_created", asr=1)
+        assert created["schema"] == "asrmap/event/1"
+        asr = rig.asrs.get(timeout=5)
+        assert asr["schema"] == "asrmap/asr/1" and asr["id"] == 1 and len(asr["boundary"]) >= 3
+
+        status = rig.status.get(timeout=5)
+        while status["laser"]["link"] != "ok":
+            status = rig.status.get(timeout=5)
+        assert status["pioneer"]["link"] == "ok" and status["battery"] == pytest.approx(12.5, abs=0.1)
+        assert status["rates"]["scans"] > 0 and status["dropped_scans"] >= 0
+
+        doc, _ = rig.get("asrmap/rig/map")
+        from mapper.document import from_document
+
+        assert doc["schema"] == "asrmap/map/1" and doc["robot"] == "rig"
+        assert [a.id for a in from_document(doc).asrs][:1] == [1]
+
+        robot, laser = rig.robot.emulator, rig.laser.emulator
+        assert robot.state == "open" and laser.streaming
+        rc, seconds = rig.service.terminate()
+        assert rc == 0 and seconds < 2.0, rig.service.log()[-2000:]
+        assert rig.alive.get(timeout=5) == zenoh.SampleKind.DELETE
+        assert robot.wheel_speeds == (0.0, 0.0) and not robot.motors_enabled and robot.state == "waiting"
+        assert {"STOP", "CLOSE"} <= set(robot.commands_seen())
+        assert not laser.streaming, "the laser's continuous output was not stopped"
+        assert "Traceback" not in rig.service.log()
+    finally:
+        rig.close()
+
+
+def test_a_laser_replugged_under_the_same_name_is_recovered_without_a_restart(rig):
+    rig.ready()
+    rig.event("asr_created", asr=1)
+    stops = rig.robot.emulator.commands_seen().count("STOP")
+    rig.laser.unplug()
+    fault = rig.event("fault", device="laser")
+    assert fault["reason"].startswith("no data for")
+    time.sleep(0.3)
+    assert rig.robot.emulator.commands_seen().count("STOP") > stops, "the robot was not stopped while blind"
+    rig.laser.plug()
+    rig.event("recovered", device="laser")
+    deadline = time.monotonic() + 5
+    while (st := rig.status.get(timeout=5))["laser"]["rate"] < 5 and time.monotonic() < deadline:
+        pass
+    assert st["laser"]["link"] == "ok" and st["laser"]["faults"] == 1 and st["laser"]["recoveries"] == 1
+    assert rig.service.proc.poll() is None
+
+
+def test_a_refused_command_has_no_effect(rig):
+    rig.ready()
+    time.sleep(0.3)
+    seen = list(rig.robot.emulator.commands_seen())
+    ok, err = rig.get("asrmap/rig/cmd/stop")
+    assert ok is None and "command stop is disabled" in err["error"]
+    ok, err = rig.get("asrmap/rig/cmd/explore")
+    assert ok is None and "disabled" in err["error"]
+    time.sleep(0.3)
+    after = rig.robot.emulator.commands_seen()[len(seen):]
+    assert set(after) <= {"PULSE"}, after
+
+
+def test_an_allowed_stop_command_stops_the_robot(tmp_path):
+    rig = Rig(tmp_path, zenoh={"allow_commands": ["stop"]})
+    try:
+        rig.ready()
+        stops = rig.robot.emulator.commands_seen().count("STOP")
+        ok, err = rig.get("asrmap/rig/cmd/stop")
+        assert err is None and ok == {"schema": "asrmap/command/1", "command": "stop", "stopped": True}
+        time.sleep(0.3)
+        assert rig.robot.emulator.commands_seen().count("STOP") == stops + 1
+    finally:
+        rig.close()
+
+
+@pytest.mark.parametrize(("text", "line"), [
+    ("[laser]\nbaudrate = 12345\n",
+     "laser.baudrate: expected one of 9600, 19200, 38400, 500000; found 12345"),
+    ('[pioneer]\nprot = "/dev/ttyUSB0"\n', "pioneer.prot: expected one of the keys port, baudrate, model; "
+                                            "found an unknown key"),
+    ("[zenoh\n", "not valid TOML"),
+])
+def test_a_bad_config_file_is_one_clear_line(tmp_path, text, line):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(text)
+    r = subprocess.run([sys.executable, "-m", "service.cli", "run", "--config", str(cfg)], cwd=ROOT,
+                       capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and r.stdout == ""
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"asrmap run: {cfg}: ") and line in lines[0], r.stderr
+
+
+def test_a_busy_zenoh_port_is_one_clear_line(rig, tmp_path):
+    rig.ready()
+    r = subprocess.run([sys.executable, "-m", "service.cli", "run", "--config", str(rig.config)], cwd=ROOT,
+                       capture_output=True, text=True, timeout=30)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert lines[0].startswith("asrmap run: cannot open the zenoh session (listen ") and "in use" in lines[0]
+    assert ".rs:" not in lines[0] and "[zenoh] listen" in lines[0]
