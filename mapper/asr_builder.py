@@ -41,17 +41,7 @@ from mapper.types import ASR, Exit
 from mapper.view import View, valid_polygon
 
 _PARALLEL = math.cos(math.radians(20.0))
-
-
-def _seg_distance(p: np.ndarray, seg: np.ndarray) -> np.ndarray:
-    """Distances (P, S) from points (P, 2) to segments (S, 2, 2)."""
-    a = seg[None, :, 0, :]
-    ab = seg[None, :, 1, :] - a
-    ap = p[:, None, :] - a
-    den = np.maximum(np.einsum("psi,psi->ps", ab, ab), 1e-18)
-    t = np.clip(np.einsum("psi,psi->ps", ap, ab) / den, 0.0, 1.0)
-    d = ap - t[..., None] * ab
-    return np.hypot(d[..., 0], d[..., 1])
+_SAMPLES = np.linspace(0.1, 0.9, 5)  # fractions along an exit tested for being covered by surfaces
 
 
 def _along(mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float) -> np.ndarray:
@@ -89,6 +79,7 @@ class AsrBuilder:
         self.exit_segments = np.zeros((0, 2, 2))
         self.viewpoints: list[Pose] = []
         self._last_viewpoint: Pose | None = None
+        self._gate_cache: tuple | None = None
         self._next_exit = 0
 
     def add_view(self, view: View, pose: Pose) -> bool:
@@ -104,9 +95,10 @@ class AsrBuilder:
         self.asr.scans += 1
         world_surfaces = _transform_segments(pose, view.surfaces)
         gates = self._gates(world_surfaces)
+        new = shapely.union_all(pieces) if len(pieces) > 1 else pieces[0]
         if gates is not None:
-            pieces = [shapely.difference(q, gates) for q in pieces]
-        grown = shapely.union_all([self.polygon, *pieces])
+            new = shapely.difference(new, gates)
+        grown = shapely.union(self.polygon, new)
         if self.polygon.area > 0 and grown.area - self.polygon.area < p.min_area_gain:
             self._record(pose, robot)
             return False
@@ -153,40 +145,47 @@ class AsrBuilder:
         return near
 
     def _gates(self, seen: np.ndarray) -> shapely.Geometry | None:
-        """What lies beyond the ASR's exits (minus the ASR): later views must not grow into it.
+        """What lies beyond the ASR's exits: later views must not grow into it.
 
         Without this the views taken near a doorway, which see through it, would swallow the next
         room and the robot would never leave the ASR. Each exit's gate is a trapezoid from the exit
-        outward, widening at 45°, ``gate_depth`` deep. An exit that the new view sees covered by
-        surfaces (``seen``, ASR frame) was explained away: it gets no gate, and its stored exit
-        segments are dropped so the boundary there can become surface.
+        outward, widening at 45°, ``gate_depth`` deep (where it overlaps the ASR, the union with the
+        ASR restores the ASR). An exit that the new view sees covered by surfaces (``seen``, ASR
+        frame: three of five points along it lie along a surface) was explained away: it gets no
+        gate, and its stored exit segments are dropped so the boundary there can become surface.
+        The gates change only when the exits do, so they are cached between views.
         """
         p = self.p
-        gates = []
-        for e in self.asr.exits:
-            a, b = np.asarray(e.a), np.asarray(e.b)
-            ab = b - a
-            w = float(np.hypot(*ab))
-            s = ab / w
-            n = np.array([s[1], -s[0]])  # right of a->b: outside for a counter-clockwise boundary
-            samples = a + np.linspace(0.1, 0.9, 5)[:, None] * ab
-            if (
-                len(seen)
-                and _along(samples, np.repeat(s[None], 5, axis=0), seen, p.label_tolerance).sum() >= 3
-            ):
-                keep = ~_along(
-                    0.5 * (self.exit_segments[:, 0] + self.exit_segments[:, 1]),
-                    np.repeat(s[None], len(self.exit_segments), axis=0),
-                    np.stack([a, b])[None],
-                    p.label_tolerance,
-                )
-                self.exit_segments = self.exit_segments[keep]
-                continue
-            d = p.gate_depth
-            gates.append(shapely.Polygon([a, b, b + d * (n + s), a + d * (n - s)]))
-        if not gates:
+        exits = self.asr.exits
+        if not exits:
             return None
-        return shapely.difference(shapely.union_all(gates), self.polygon.buffer(p.simplify_tolerance))
+        a = np.array([e.a for e in exits])
+        b = np.array([e.b for e in exits])
+        ab = b - a
+        s = ab / np.maximum(np.hypot(ab[:, 0], ab[:, 1]), 1e-12)[:, None]
+        explained = np.zeros(len(exits), dtype=bool)
+        if len(seen):
+            samples = a[:, None, :] + _SAMPLES[None, :, None] * ab[:, None, :]
+            dirs = np.repeat(s, len(_SAMPLES), axis=0)
+            hits = _along(samples.reshape(-1, 2), dirs, seen, p.label_tolerance).reshape(len(exits), -1)
+            explained = hits.sum(axis=1) >= 3
+        if explained.any() and len(self.exit_segments):
+            es = self.exit_segments
+            ev = es[:, 1] - es[:, 0]
+            ev = ev / np.maximum(np.hypot(ev[:, 0], ev[:, 1]), 1e-12)[:, None]
+            gone = np.stack([a[explained], b[explained]], axis=1)
+            self.exit_segments = es[~_along(0.5 * (es[:, 0] + es[:, 1]), ev, gone, p.label_tolerance)]
+        keep = ~explained
+        key = (a[keep].tobytes(), b[keep].tobytes())
+        if self._gate_cache is not None and self._gate_cache[0] == key:
+            return self._gate_cache[1]
+        n = np.stack([s[keep, 1], -s[keep, 0]], axis=1)  # right of a->b: outside (CCW boundary)
+        d = p.gate_depth
+        ak, bk, sk = a[keep], b[keep], s[keep]
+        quads = np.stack([ak, bk, bk + d * (n + sk), ak + d * (n - sk)], axis=1)
+        gates = shapely.union_all(shapely.polygons(quads)) if len(quads) else None
+        self._gate_cache = (key, gates)
+        return gates
 
     def _single_ring(self, g: shapely.Geometry, robot: shapely.Point) -> shapely.Polygon:
         """Valid, one ring, simplified, no holes: the part holding the ASR's origin (the first
@@ -210,24 +209,23 @@ class AsrBuilder:
             v = v[::-1]
         if len(self.exit_segments) == 0:
             return v
-        x = self.exit_segments.reshape(-1, 2)
-        edges = np.stack([v, np.roll(v, -1, axis=0)], axis=1)
-        d = _seg_distance(x, edges)
-        e = np.argmin(d, axis=1)
-        a, b = edges[e, 0], edges[e, 1]
-        ab = b - a
-        t = np.einsum("ij,ij->i", x - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-18)
-        near_vertex = np.minimum(np.hypot(*(x - a).T), np.hypot(*(x - b).T)) < self.p.simplify_tolerance
-        ok = (d[np.arange(len(x)), e] < self.p.label_tolerance) & (t > 0) & (t < 1) & ~near_vertex
+        tol = self.p.simplify_tolerance
+        line = shapely.LinearRing(v)
+        pts = shapely.points(self.exit_segments.reshape(-1, 2))
+        at = shapely.line_locate_point(line, pts)  # arc length along the ring (m)
+        near = shapely.distance(pts, line) < self.p.label_tolerance
+        cum = np.concatenate([[0.0], np.cumsum(np.hypot(*(np.roll(v, -1, axis=0) - v).T))])
+        e = np.clip(np.searchsorted(cum, at, side="right") - 1, 0, len(v) - 1)
+        ok = near & (at - cum[e] > tol) & (cum[e + 1] - at > tol)
         if not ok.any():
             return v
-        e, t = e[ok], t[ok]
-        order = np.lexsort((t, e))
-        e, t = e[order], t[order]
-        pts = a[ok][order] + t[:, None] * ab[ok][order]
-        # drop insertions that coincide with one another (the two ends of abutting exits)
-        keep = np.append(True, np.hypot(*np.diff(pts, axis=0).T) > self.p.simplify_tolerance)
-        return np.insert(v, e[keep] + 1, pts[keep], axis=0)
+        order = np.argsort(at[ok])
+        at, e = at[ok][order], e[ok][order]
+        # one vertex for coinciding insertions (the two ends of abutting exits)
+        keep = np.append(True, np.diff(at) > tol)
+        at, e = at[keep], e[keep]
+        new = shapely.get_coordinates(shapely.line_interpolate_point(line, at))
+        return np.insert(v, e + 1, new, axis=0)
 
     def _relabel(self) -> None:
         p = self.p

@@ -94,11 +94,6 @@ def _peak(c: np.ndarray) -> float:
     return float(i)
 
 
-def _quality(peak: float, a: np.ndarray, b: np.ndarray) -> float:
-    den = math.sqrt(float(a @ a) * float(b @ b))
-    return float(peak / den) if den > 0 else 0.0
-
-
 def _rot(a: float) -> np.ndarray:
     c, s = math.cos(a), math.sin(a)
     return np.array([[c, -s], [s, c]])
@@ -110,11 +105,14 @@ class Localiser:
     def __init__(self, params: MapperParams):
         self.p = params
         self.kf = KalmanFilter(dim_x=3, dim_z=3)
+        # constant model matrices: F = B = H = I (see the module docstring)
+        self.kf.F, self.kf.B, self.kf.H = np.eye(3), np.eye(3), np.eye(3)
         self._nb = round(math.pi / params.angle_bin)
         w = math.ceil(params.max_rotation / params.angle_bin)
         self._rot_shifts = np.arange(-w, w + 1)
         self._rot_index = (np.arange(self._nb)[None, :] + self._rot_shifts[:, None]) % self._nb
         self._tw = math.ceil(params.max_translation / params.xy_bin)
+        self._win = np.arange(-self._tw, self._tw + 1)[:, None, None]
         self.reset()
 
     def reset(self, pose: Pose = (0.0, 0.0, 0.0)) -> None:
@@ -138,7 +136,7 @@ class Localiser:
         trans = math.hypot(delta[0], delta[1])
         st = p.odom_sigma_floor_xy + p.odom_sigma_per_m * trans
         sr = p.odom_sigma_floor_theta + p.odom_sigma_per_rad * abs(delta[2]) + p.odom_sigma_per_m * trans
-        self.kf.predict(u=u, B=np.eye(3), F=np.eye(3), Q=np.diag([st * st, st * st, sr * sr]))
+        self.kf.predict(u=u, Q=np.diag([st * st, st * st, sr * sr]))
         self.kf.x[2] = wrap(float(self.kf.x[2]))
         return self.pose
 
@@ -158,14 +156,22 @@ class Localiser:
             self._ref_ready = False
             return
         self._hr = _hist_circular(dirs, self._nb)
+        self._hr_shifted = self._hr[self._rot_index]  # (shifts, bins): the rotation correlation is one matvec
+        self._hr_norm = float(np.sqrt(self._hr @ self._hr))
         self._alpha = (_peak(self._hr) + 0.5) * p.angle_bin
         uv = pts @ _rot(self._alpha)  # rows rotated by -alpha
         self._uv0 = uv.min(axis=0) - p.max_translation
         nb = np.floor((uv.max(axis=0) + p.max_translation - self._uv0) / p.xy_bin).astype(int) + 1
-        self._nuv = nb
         b = np.floor((uv - self._uv0) / p.xy_bin).astype(int)
-        self._hu = np.bincount(b[:, 0], minlength=nb[0]).astype(float)
-        self._hv = np.bincount(b[:, 1], minlength=nb[1]).astype(float)
+        hu = np.bincount(b[:, 0], minlength=nb[0]).astype(float)
+        hv = np.bincount(b[:, 1], minlength=nb[1]).astype(float)
+        tw = self._tw
+        # u and v histograms side by side, each padded by the search window, then a zero window
+        # where scan points beyond the reference fall (index sink - tw)
+        self._huv = np.concatenate([np.zeros(tw), hu, np.zeros(2 * tw), hv, np.zeros(2 * tw + 1)])
+        self._offsets = np.array([tw, len(hu) + 3 * tw])  # where bin 0 of u and of v sit
+        self._nuv = nb
+        self._huv_norm = (float(np.sqrt(hu @ hu)), float(np.sqrt(hv @ hv)))
         self._ref_ready = True
 
     def correct(self, xy: np.ndarray) -> Match | None:
@@ -177,39 +183,68 @@ class Localiser:
         dirs = _directions(xy, p.direction_max_gap)
         if len(dirs) < 10:
             return None
-        hc = _hist_circular(np.mod(dirs + th, np.pi), self._nb)
-        c = self._hr[self._rot_index] @ hc
+        bins = np.floor(np.mod(dirs + th, np.pi) * (self._nb / np.pi)).astype(int) % self._nb
+        hc = np.bincount(bins, minlength=self._nb).astype(float)
+        c = self._hr_shifted @ hc
         s = _peak(c)
-        q_th = _quality(float(c.max()), hc, self._hr)
+        q_th = _norm_peak(float(c.max()), float(np.sqrt(hc @ hc)), self._hr_norm)
         th_m = wrap(th + (s - (len(c) - 1) / 2.0) * p.angle_bin)
         if q_th < p.min_quality:
             return Match((x, y, th_m), q_th, 0.0, 0.0, False, "rotation quality")
 
-        uv = transform_points((x, y, th_m), xy) @ _rot(self._alpha)
-        b = np.floor((uv - self._uv0) / p.xy_bin).astype(int)
-        shifts, qs = [], []
-        for axis, href in ((0, self._hu), (1, self._hv)):  # two axes, not a per-beam loop
-            bi = b[:, axis]
-            bi = bi[(bi >= 0) & (bi < len(href))]
-            hc_ax = np.bincount(bi, minlength=len(href)).astype(float)
-            tw = self._tw
-            cc = np.correlate(np.pad(href, tw), hc_ax, mode="valid")
-            shifts.append((_peak(cc) - tw) * p.xy_bin)
-            qs.append(_quality(float(cc.max()), hc_ax, href))
-        corr = _rot(self._alpha) @ np.array(shifts)
-        z = np.array([x + corr[0], y + corr[1], th_m])
-        var_uv = [(p.match_sigma_xy / q) ** 2 if q >= p.min_quality else _NOT_MEASURED for q in qs]
+        # scan points at (x, y, th_m), rotated by -alpha into the reference's main axes (u, v),
+        # as indices into the side-by-side u|v reference histogram (outside: the zero window)
+        m = _rot(th_m - self._alpha)
+        org = _rot(-self._alpha) @ np.array([x, y]) - self._uv0
+        b = np.floor((xy @ m.T + org) * (1.0 / p.xy_bin)).astype(int)
+        tw, out = self._tw, len(self._huv) - 1 - self._tw
+        idx = np.where((b >= 0) & (b < self._nuv), b + self._offsets, out)  # (K, 2)
+        # C(d) = sum_b h_scan(b) h_ref(b + d) = the sum over scan points of h_ref(bin + d)
+        c_uv = self._huv[idx[None, :, :] + self._win].sum(axis=1)  # (2 tw + 1, 2)
+        cu, cv = c_uv[:, 0], c_uv[:, 1]
+        shifts = np.array([(_peak(cu) - tw) * p.xy_bin, (_peak(cv) - tw) * p.xy_bin])
+        h = np.bincount(idx.ravel(), minlength=len(self._huv)).astype(float)
+        h[out] = 0.0
+        h *= h
+        norm_u, norm_v = math.sqrt(h[: self._offsets[1]].sum()), math.sqrt(h[self._offsets[1] :].sum())
+        qs = (
+            _norm_peak(float(cu.max()), norm_u, self._huv_norm[0]),
+            _norm_peak(float(cv.max()), norm_v, self._huv_norm[1]),
+        )
         ra = _rot(self._alpha)
+        corr = ra @ shifts
+        var_uv = [(p.match_sigma_xy / q) ** 2 if q >= p.min_quality else _NOT_MEASURED for q in qs]
         r = np.zeros((3, 3))
-        r[:2, :2] = ra @ np.diag(var_uv) @ ra.T
+        r[:2, :2] = (ra * var_uv) @ ra.T
         r[2, 2] = (p.match_sigma_theta / q_th) ** 2
-        z[2] = th + wrap(z[2] - th)
+        z = np.array([x + corr[0], y + corr[1], th + wrap(th_m - th)])
         innov = z - self.kf.x
         innov[2] = wrap(float(innov[2]))
-        d2 = float(innov @ np.linalg.solve(self.kf.P + r, innov))
+        d2 = _mahalanobis2(innov, self.kf.P + r)
         pose_m = (float(z[0]), float(z[1]), wrap(float(z[2])))
         if d2 > p.gate_chi2:
             return Match(pose_m, q_th, qs[0], qs[1], False, f"gate (d2 {d2:.1f})")
-        self.kf.update(z, R=r, H=np.eye(3))
+        self.kf.update(z, R=r)
         self.kf.x[2] = wrap(float(self.kf.x[2]))
         return Match(pose_m, q_th, qs[0], qs[1], True, "ok")
+
+
+def _norm_peak(peak: float, norm_a: float, norm_b: float) -> float:
+    """Normalised correlation peak (cosine similarity of the best-aligned histograms), 0..1."""
+    den = norm_a * norm_b
+    return peak / den if den > 0 else 0.0
+
+
+def _mahalanobis2(y: np.ndarray, s: np.ndarray) -> float:
+    """y^T S^-1 y for a 3-vector and a symmetric positive definite 3x3 S (closed form, no LAPACK call)."""
+    a, b, c = s[0, 0], s[0, 1], s[0, 2]
+    d, e, f = s[1, 1], s[1, 2], s[2, 2]
+    # cofactors of the symmetric matrix [[a b c] [b d e] [c e f]]
+    A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
+    D, E, F = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * A + b * B + c * C
+    if det <= 0:
+        return math.inf
+    y0, y1, y2 = float(y[0]), float(y[1]), float(y[2])
+    q = A * y0 * y0 + D * y1 * y1 + F * y2 * y2 + 2 * (B * y0 * y1 + C * y0 * y2 + E * y1 * y2)
+    return float(q / det)
