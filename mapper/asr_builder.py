@@ -80,6 +80,7 @@ class AsrBuilder:
         self.viewpoints: list[Pose] = []
         self._last_viewpoint: Pose | None = None
         self._gate_cache: tuple | None = None
+        self._pruned_size = 16
         self._next_exit = 0
 
     def add_view(self, view: View, pose: Pose) -> bool:
@@ -253,31 +254,28 @@ class AsrBuilder:
         """Maximal runs of exit edges as (a, b) segments; too-narrow runs are relabelled unknown."""
         n = len(labels)
         ex = labels == "exit"
-        if not ex.any():
+        if not ex.any() or ex.all():
             return []
-        if ex.all():
-            return [(v[0], v[0])]
-        start = int(np.flatnonzero(~ex)[0])  # rotate so that no run wraps around
-        runs, i = [], 0
-        while i < n:  # one step per boundary edge of the (simplified) ring
-            j = (start + i) % n
-            if ex[j]:
-                k = i
-                while k < n and ex[(start + k) % n]:
-                    k += 1
-                first, last = j, (start + k) % n
-                if np.hypot(*(v[last] - v[first])) >= self.p.passage_width:
-                    runs.append((v[first], v[last]))
-                else:
-                    for m in range(i, k):
-                        labels[(start + m) % n] = "unknown"
-                i = k
-            else:
-                i += 1
-        return runs
+        shift = int(np.flatnonzero(~ex)[0])  # rotate so that no run wraps around the ring's start
+        r = np.roll(ex, -shift)
+        edge = np.diff(np.concatenate([[0], r.astype(np.int8), [0]]))
+        first = np.flatnonzero(edge == 1)  # first edge of each run (rotated indices)
+        stop = np.flatnonzero(edge == -1)  # one past its last edge
+        a = v[(first + shift) % n]
+        b = v[(stop + shift) % n]
+        wide = np.hypot(*(b - a).T) >= self.p.passage_width
+        for f, e in zip(first[~wide].tolist(), stop[~wide].tolist(), strict=True):
+            labels[(np.arange(f, e) + shift) % n] = "unknown"
+        return list(zip(a[wide], b[wide], strict=True))
 
     def _prune(self) -> None:
-        """Drop stored segments that lie inside the polygon: they can never be boundary again."""
+        """Drop stored segments that lie inside the polygon: they can never be boundary again.
+
+        Run when the store has doubled since the last pruning, which keeps it proportional to the
+        boundary at a constant amortised cost per view."""
+        size = len(self.surfaces) + len(self.exit_segments)
+        if size < 2 * self._pruned_size:
+            return
         tol = self.p.label_tolerance
         ring = self.polygon.exterior
         for name in ("surfaces", "exit_segments"):
@@ -287,6 +285,7 @@ class AsrBuilder:
             mid = shapely.points(0.5 * (seg[:, 0] + seg[:, 1]))
             near = shapely.distance(mid, ring) < tol + 0.5 * np.hypot(*(seg[:, 1] - seg[:, 0]).T)
             setattr(self, name, seg[near])
+        self._pruned_size = max(len(self.surfaces) + len(self.exit_segments), 16)
 
     def _keep_ids(self, runs: list[tuple[np.ndarray, np.ndarray]]) -> list[Exit]:
         old = list(self.asr.exits)

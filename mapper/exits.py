@@ -142,15 +142,15 @@ def find_covers(surf: Surfaces, p: MapperParams) -> Covers:
     # the side's other end (the jamb's edge facing the robot) is as short, and it is the doorway
     # the robot meets first. Take it when no more than ``_ALT_SLACK`` longer and nearer the laser.
     alt = np.where(right[:, None], seg[gap, 0], seg[gap + 1, 1])
-    a_best, a_len, a_qb, a_tqb = _shortest(seg, o, alt, gap, right, p)
-    nearer = np.hypot(*(0.5 * (alt + a_qb) - o).T) < np.hypot(*(0.5 * (pp + qb) - o).T)
-    short = np.hypot(*(alt - pp).T) <= _JAMB_MAX
-    use = np.isfinite(a_len) & (a_len <= best_len + _ALT_SLACK) & nearer & short
-    if use.any():
-        pp = np.where(use[:, None], alt, pp)
-        best, best_len = np.where(use, a_best, best), np.where(use, a_len, best_len)
-        qb, tqb = np.where(use[:, None], a_qb, qb), np.where(use, a_tqb, tqb)
-        pos_p = np.where(use, np.where(right, 2 * gap, 2 * gap + 3), pos_p)
+    jamb = np.flatnonzero((np.hypot(*(alt - pp).T) <= _JAMB_MAX) & np.isfinite(best_len))
+    if len(jamb):
+        a_best, a_len, a_qb, a_tqb = _shortest(seg, o, alt[jamb], gap[jamb], right[jamb], p)
+        nearer = np.hypot(*(0.5 * (alt[jamb] + a_qb) - o).T) < np.hypot(*(0.5 * (pp[jamb] + qb[jamb]) - o).T)
+        use = np.isfinite(a_len) & (a_len <= best_len[jamb] + _ALT_SLACK) & nearer
+        j = jamb[use]
+        pp[j], best[j], best_len[j] = alt[j], a_best[use], a_len[use]
+        qb[j], tqb[j] = a_qb[use], a_tqb[use]
+        pos_p[j] = np.where(right[j], 2 * gap[j], 2 * gap[j] + 3)
     label = np.where(best_len >= p.passage_width, EXIT, CLOSED).astype(object)
     label[~np.isfinite(best_len)] = OPEN
     pos_q = 2 * best + tqb
