@@ -55,7 +55,10 @@ class ExploreParams:
     #: m. An unknown run whose midpoint is this close to one already looked at is not visited again.
     visit_radius: float = 1.0
     #: m. An unknown region within this distance, in the laser's field of view, counts as seen.
-    look_distance: float = 2.0
+    look_distance: float = 2.5
+    #: rad. ... where "in the field of view" is within this of straight ahead (the LMS sees ±90°;
+    #: the margin keeps regions grazed at the edge of the sweep for a proper look).
+    view_half_angle: float = math.radians(70.0)
     #: m. A target is reached within this distance.
     arrive_tol: float = 0.3
     #: rad. Facing a direction within this counts as facing it.
@@ -286,6 +289,19 @@ class Planner:
         return any(math.hypot(m[0] - q[0], m[1] - q[1]) < 0.5 for q in near)
 
     # -- queries -------------------------------------------------------------------------------
+    def observe(self, asr: ASR, pose: Pose) -> int:
+        """Mark the pending unknown regions of ``asr`` that the robot at ``pose`` (ASR frame) has in
+        view and near as looked at; returns how many. Regions resolved by the view vanish from the
+        ASR anyway; this retires the ones that stay unknown (occluded) without a trip to each."""
+        n = 0
+        for m in self.pending_unknown(asr):
+            d = math.hypot(m[0] - pose[0], m[1] - pose[1])
+            bearing = wrap(math.atan2(m[1] - pose[1], m[0] - pose[0]) - pose[2])
+            if d < self.p.look_distance and abs(bearing) < self.p.view_half_angle:
+                self.looked_at(asr.id, m)
+                n += 1
+        return n
+
     def pending_unknown(self, asr: ASR) -> list[tuple[float, float]]:
         """Midpoints (ASR frame) of the unknown runs of ``asr`` still to be looked at."""
         seen = np.array(self.memory.looked.get(asr.id, []), dtype=float).reshape(-1, 2)
@@ -552,6 +568,8 @@ class Explorer:
         return self._step(view, points, t)
 
     def _step(self, view: MapView, points: np.ndarray, t: float) -> Command:
+        if view.current in view.asrs:
+            self.planner.observe(view.asrs[view.current], view.pose)
         if not self._still_valid(view):
             goal = self.planner.plan(view)
             self._set_goal(goal, t)
