@@ -106,6 +106,7 @@ class Pioneer:
     - ``on_link(state, reason)``: called on every change of :attr:`link_state`
       ("connecting", "up", "lost", "closed").
     - ``reconnect``: reconnect in the background after a lost link (else the state stays "lost").
+    - ``enable_motors``: send ENABLE 1 on every (re)connect (False for a look-only connection).
 
     Raises :class:`~pioneer.errors.PortUnavailable`, :class:`~pioneer.errors.LinkLost` or
     :class:`~pioneer.errors.ProtocolError` when the first connection fails.
@@ -122,6 +123,7 @@ class Pioneer:
         history: int = 600,
         on_link: Callable[[str, str], Any] | None = None,
         reconnect: bool = True,
+        enable_motors: bool = True,
     ) -> None:
         self.port = port
         self.baudrate = baudrate
@@ -129,6 +131,7 @@ class Pioneer:
         self.timeouts = timeouts or Timeouts()
         self.request_config = request_config
         self.reconnect = reconnect
+        self.enable_motors = enable_motors
         self.identity: Identity | None = None
         self.config = None
         self.encoders: EncoderCounts | None = None
@@ -388,12 +391,8 @@ class Pioneer:
         self.identity = ident
         self._integrator.rebase()
         self._seto_deadline = None
-        self._send(
-            command(Command.OPEN)
-            + command(Command.VEL, 0)
-            + command(Command.RVEL, 0)
-            + command(Command.ENABLE, 1)
-        )
+        zero = command(Command.VEL, 0) + command(Command.RVEL, 0)
+        self._send(command(Command.OPEN) + zero + (command(Command.ENABLE, 1) if self.enable_motors else b""))
         if self.request_config:
             self._send(command(Command.CONFIG, 1))
             self._pump_until(lambda: self.config is not None, self.timeouts.config)

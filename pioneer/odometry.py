@@ -36,7 +36,7 @@ def normalize_angle(a: float) -> float:
     return a
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class PioneerOdometry:
     """One SIP as odometry. ``t``: host ``time.monotonic()`` (s) when the SIP's last byte was read.
     ``x``, ``y`` (m), ``theta`` (rad, in (-π, π]): pose in the odometry frame. ``v`` (m/s), ``w``
@@ -108,5 +108,10 @@ class OdometryIntegrator:
             w = math.radians(sip.rot_vel / 10.0)
         else:
             w = (sip.right_vel - sip.left_vel) * p.vel_conv / 2.0 * p.diff_conv
-        return PioneerOdometry(t, self._x, self._y, normalize_angle(self._heading),
-                               (left + right) / 2.0, w, left, right, sip)
+        # Built like decode_sip builds a SIP (one dict display): this runs for every SIP.
+        odo = object.__new__(PioneerOdometry)
+        object.__setattr__(odo, "__dict__", {
+            "t": t, "x": self._x, "y": self._y, "theta": normalize_angle(self._heading),
+            "v": (left + right) / 2.0, "w": w, "left": left, "right": right, "sip": sip,
+        })
+        return odo

@@ -9,8 +9,7 @@ the emulator (robot side) share :func:`frame` and :class:`PacketReader`.
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
-from functools import lru_cache
+from typing import NamedTuple
 
 SYNC = b"\xfa\xfb"
 MIN_COUNT = 3  # one data byte (the command or packet type) plus the checksum
@@ -19,14 +18,15 @@ MIN_COUNT = 3  # one data byte (the command or packet type) plus the checksum
 MAX_COUNT = 200
 
 
-@lru_cache(maxsize=256)
-def _pairs(n: int) -> struct.Struct:
-    return struct.Struct(f">{n // 2}H")
+# One big-endian pair reader per data length (at most 198 bytes).
+_PAIRS = [struct.Struct(f">{n // 2}H").unpack_from for n in range(256)]
 
 
 def checksum(data: bytes) -> int:
     """The P2OS checksum of a packet's data bytes (the command/type byte through the last argument)."""
-    c = sum(_pairs(len(data)).unpack_from(data)) & 0xFFFF
+    n = len(data)
+    pairs = _PAIRS[n] if n < 256 else struct.Struct(f">{n // 2}H").unpack_from
+    c = sum(pairs(data)) & 0xFFFF
     if len(data) & 1:
         c ^= data[-1]
     return c
@@ -40,9 +40,9 @@ def frame(data: bytes) -> bytes:
     return b"%s%c%s%c%c" % (SYNC, len(data) + 2, data, c >> 8, c & 0xFF)
 
 
-@dataclass(frozen=True, slots=True)
-class Packet:
-    """One intact packet: ``data`` is everything between the byte count and the checksum."""
+class Packet(NamedTuple):
+    """One intact packet: ``data`` is everything between the byte count and the checksum.
+    (An immutable record; a NamedTuple because the reader makes one per packet on the hot path.)"""
 
     data: bytes
 
