@@ -126,7 +126,7 @@ def _damaged(frame: bytes, how: int, pos: int, bit: int) -> bytes:
     return bytes(flipped)
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(
     st.lists(
         st.tuples(
