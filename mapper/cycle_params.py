@@ -22,6 +22,11 @@ class CycleParams:
     its last check). The paper re-checks a growing ASR so that a match rejected early (ASR6/ASR7)
     can pass later; 25 % keeps the number of checks per ASR small (about log(area) of them)."""
 
+    entry_hysteresis: float = 0.3
+    """m. After entering an ASR through exit f, crossing f again does not count until the robot has
+    been this far from f: standing on a doorway, localisation noise would otherwise flip the robot
+    between the two ASRs on every scan. Half a passage width."""
+
     min_area: float = 1.0
     """m². ASRs smaller than this are not checked: a sliver seen through a doorway has a centre
     that lands anywhere and would cause a chance match."""

@@ -281,7 +281,7 @@ class GlobalMap:
         self._loop_edges.append(Edge(m, n, inverse(rel_nm), info))
         events = self._decide(t, n, m, c, cm, overlap, reason, True)
         if p.hindsight and reason != "hindsight":
-            events += self._hindsight(t, n, m)
+            events += self._hindsight(t, n, m, align.correction if good else (0.0, 0.0, 0.0))
         return events
 
     def _nearest_exit(self, parent: ASR, crossed, match: ASR):
@@ -295,8 +295,14 @@ class GlobalMap:
         mids = transform_points(match.origin, np.array([e.midpoint for e in match.exits]))
         return match.exits[int(np.argmin(np.hypot(*(mids - ref).T)))]
 
-    def _hindsight(self, t: float, n: int, m: int) -> list[Event]:
-        """§7: accept earlier crosscheck rejections (a, b) with a near n and b near m topologically."""
+    def _hindsight(self, t: float, n: int, m: int, correction: Pose) -> list[Event]:
+        """§7: re-examine earlier crosscheck rejections (a, b) with a near n and b near m topologically.
+
+        The accepted match n -> m says how far the map had drifted there: ``correction`` (global
+        frame) moves n onto m (identity without a surface alignment). Applied to a, with both ASRs
+        as they are now (grown since the rejection), the centre crosscheck is run again; a pair
+        that passes (and verifies, when ``verify``) is accepted with reason ``hindsight``.
+        """
         hops = self.params.hindsight_hops
         near_n, near_m = self.topology.within(n, hops), self.topology.within(m, hops)
         events: list[Event] = []
@@ -305,17 +311,16 @@ class GlobalMap:
                 continue
             if self.topology.canonical(a) == self.topology.canonical(b):
                 continue
+            moved = compose(correction, self.asrs[a].origin)
+            pa, ca = global_polygon(self.asrs[a], moved), global_centre(self.asrs[a], moved)
+            pb, cb = global_polygon(self.asrs[b]), global_centre(self.asrs[b])
+            if not (pb.intersects(shapely.Point(ca)) and pa.intersects(shapely.Point(cb))):
+                continue
             del self._rejected[(a, b)]
             align = self._align(a, b) if (self.params.verify or self.params.realign) else None
             if self.params.verify and not self._verified(align):
                 continue
-            pa, ca, cb = (
-                global_polygon(self.asrs[a]),
-                global_centre(self.asrs[a]),
-                global_centre(self.asrs[b]),
-            )
-            overlap = iou(pa, global_polygon(self.asrs[b]))
-            events += self._close(t, a, b, ca, cb, overlap, "hindsight", align)
+            events += self._close(t, a, b, ca, cb, iou(pa, pb), "hindsight", align)
         return events
 
     # -- realignment ------------------------------------------------------------------------------

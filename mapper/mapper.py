@@ -13,12 +13,20 @@ Frames: the first ASR's frame is the global frame (origin (0, 0, 0)); each ASR's
 robot pose at the scan that created it; ``pose`` is the robot in the current ASR's frame and
 ``global_pose`` = origin(current) ⊕ pose.
 
-Crossing (§4, simplest form): when the segment from the previous to the current pose crosses an
-exit of the current ASR and the current pose lies outside its polygon, a new ASR is created with its
+Crossing (§4): when the segment from the previous to the current pose crosses an exit of the
+current ASR and the current pose lies outside its polygon, the robot leaves through it. If the
+topological map knows where that exit leads (:mod:`mapper.topology`), the robot **re-enters** that
+ASR: its pose is handed over with the transition's relative pose, localisation continues against
+that ASR's reference scans, and its polygon keeps growing. Otherwise a new ASR is created with its
 frame at the current pose and global origin = old origin ⊕ pose; its exit nearest the crossing point
-is the entrance (``via``). The crossing logic lives in the small ``_crossed_exit``,
-``_leave_through``, ``_new_asr`` and ``_entrance`` methods so that re-entry into known ASRs and cycle
-checks can extend them.
+is the entrance (``via``). Right after entering through an exit, crossing that same exit back does
+not count until the robot has been ``CycleParams.entry_hysteresis`` away from it (a robot standing in
+a doorway would otherwise flip between the two ASRs).
+
+The global metric map and cycle closing (§5, §7) live in :class:`mapper.globalmap.GlobalMap`
+(``Mapper.globalmap``): it is told of every new, re-entered and grown ASR and answers with cycle
+events (CycleDetected, CycleRejected, MapRealigned). ``document()`` gives the ``asrmap/map/1`` map and
+``Mapper.from_document`` continues a saved one.
 """
 
 from __future__ import annotations
@@ -31,12 +39,15 @@ import numpy as np
 import shapely
 
 from mapper.asr_builder import AsrBuilder
+from mapper.document import document_of, load_globalmap
 from mapper.events import AsrCreated, AsrUpdated, Event, ExitCrossed
 from mapper.exits import find_covers
+from mapper.globalmap import GlobalMap
 from mapper.lines import ScanPoints, extract_surfaces, scan_points
 from mapper.localise import Localiser
 from mapper.params import MapperParams
-from mapper.se2 import Pose, between, compose, interpolate
+from mapper.se2 import Pose, between, compose, interpolate, inverse
+from mapper.topology import Transition
 from mapper.types import ASR, Exit, Odometry, Scan
 from mapper.view import build_view
 
@@ -78,6 +89,38 @@ class Mapper:
         self._last_odom: Pose | None = None
         self._last_view: Pose | None = None
         self._next_id = 1
+        self.globalmap = GlobalMap(self.params.cycles)
+        # Per ASR: (scan points in the robot frame, viewpoint pose) of its first and latest views,
+        # to restore the localisation reference when the robot re-enters it.
+        self._refs: dict[int, list[tuple[np.ndarray, Pose]]] = {}
+        # The (ASR, exit) the robot last came in through, and whether it has moved far enough
+        # from it for a crossing of that exit to count again.
+        self._entry: tuple[int, str | None] | None = None
+        self._armed = True
+        # After from_document: the ASR and pose (its frame) the robot is assumed to restart at.
+        self._resume: tuple[int, Pose] | None = None
+
+    # --- the map document ----------------------------------------------------------------------
+    def document(self, robot: str = "pioneer") -> dict:
+        """The whole map as an ``asrmap/map/1`` document (:mod:`mapper.document`)."""
+        return document_of(self.globalmap, robot)
+
+    @classmethod
+    def from_document(
+        cls, doc: dict, params: MapperParams | None = None, pose: Pose = (0.0, 0.0, 0.0)
+    ) -> Mapper:
+        """A mapper continuing a saved map. The robot is assumed to restart at ``pose`` in the frame
+        of the document's last ASR: its first scan starts a new ASR there, which the cycle check
+        then relates to the saved map (usually as a duplicate of the ASR it stands in). Saved ASRs
+        keep their records but not their views, so they are matched, not re-entered."""
+        m = cls(params)
+        m.globalmap = load_globalmap(doc, m.params.cycles)
+        m.asrs = dict(m.globalmap.asrs)
+        m._next_id = max(m.asrs, default=0) + 1
+        if m.globalmap.current is not None:
+            m._resume = (m.globalmap.current, tuple(pose))
+        m.globalmap.current = None
+        return m
 
     # --- poses -------------------------------------------------------------------------------------
     @property
@@ -134,7 +177,10 @@ class Mapper:
         timing = self.timing = {"points": time.perf_counter() - tic}
         if self.current is None:
             self._last_odom = odo
-            return self._new_asr(scan.t, (0.0, 0.0, 0.0), None, pts)
+            origin: Pose = (0.0, 0.0, 0.0)
+            if self._resume is not None:
+                origin = compose(self.asrs[self._resume[0]].origin, self._resume[1])
+            return self._new_asr(scan.t, origin, None, pts)
         delta = between(self._last_odom, odo)
         self._last_odom = odo
         prev = self.pose
@@ -174,25 +220,49 @@ class Mapper:
         builder = self._builders[self.current]
         changed = builder.add_view(view, pose)
         self.localiser.add_reference(pts.xy, pose)
+        refs = self._refs.setdefault(self.current, [])
+        refs.append((pts.xy, pose))
+        if len(refs) > p.reference_scans + 1:
+            del refs[1]  # the first view anchors the frame, as in the localiser
         self._last_view = pose
         timing.update(extract=tac - tic, exits=toc - tac, view=tuc - toc, asr=time.perf_counter() - tuc)
         if not changed:
             return []
         a = builder.asr
-        return [AsrUpdated(t, a.id, a.area, a.scans)]
+        events: list[Event] = [AsrUpdated(t, a.id, a.area, a.scans)]
+        if self.globalmap.current == a.id:  # not while the ASR is being created
+            tic = time.perf_counter()
+            events += self.globalmap.updated(a.id, t)
+            timing["cycles"] = time.perf_counter() - tic
+        return events
 
     # --- crossing exits (§4): small methods, meant to be extended --------------------------------
     def _crossed_exit(self, prev: Pose, pose: Pose) -> tuple[Exit, tuple[float, float]] | None:
         """The exit of the current ASR crossed between ``prev`` and ``pose`` (ASR frame) and where,
         if the robot now lies outside the ASR polygon; else None."""
         b = self._builders[self.current]
+        ignore = self._entry_to_ignore(b, pose)
         if not b.asr.exits or b.polygon.contains(shapely.Point(pose[:2])):
             return None
         for e in b.asr.exits:
+            if e.id == ignore:
+                continue
             hit, at = _segments_cross(prev, pose, e.a, e.b)
             if hit:
                 return e, at
         return None
+
+    def _entry_to_ignore(self, b: AsrBuilder, pose: Pose) -> str | None:
+        """The id of the exit just entered through while the robot is still near it (hysteresis)."""
+        if self._armed or self._entry is None or self._entry[0] != self.current:
+            return None
+        e = next((x for x in b.asr.exits if x.id == self._entry[1]), None)
+        if e is None or shapely.LineString([e.a, e.b]).distance(shapely.Point(pose[:2])) > (
+            self.params.cycles.entry_hysteresis
+        ):
+            self._armed = True
+            return None
+        return e.id
 
     def _left_elsewhere(self, prev: Pose, pose: Pose) -> tuple[Exit, tuple[float, float]] | None:
         """When the robot is more than ``leave_margin`` outside the current ASR without having crossed
@@ -215,8 +285,12 @@ class Mapper:
     def _leave_through(
         self, t: float, e: Exit, at: tuple[float, float], pose: Pose, pts: ScanPoints
     ) -> list[Event]:
-        """Create the ASR beyond exit ``e`` (crossed at ``at``), its frame at ``pose``."""
+        """Leave through exit ``e`` (crossed at ``at``): re-enter the ASR it is known to lead to, or
+        create the ASR beyond it with its frame at ``pose``."""
         old = self.current
+        known = self.globalmap.lookup(old, e.id)
+        if known is not None and known.dst in self._builders:
+            return self._reenter(t, known, pose, pts)
         origin = compose(self.asrs[old].origin, pose)
         events = self._new_asr(t, origin, old, pts)
         new = self.current
@@ -224,7 +298,30 @@ class Mapper:
         via = self._entrance(new, between(pose, (at[0], at[1], 0.0))[:2])
         if via is not None:
             via.to = old
-        events.append(ExitCrossed(t, old, e.id, new, via.id if via is not None else None, True))
+        via_id = via.id if via is not None else None
+        self._entry, self._armed = (new, via_id), False
+        events.append(ExitCrossed(t, old, e.id, new, via_id, True))
+        tic = time.perf_counter()
+        events += self.globalmap.add_created(self.asrs[new], old, e.id, via_id, pose, t)
+        self.timing["cycles"] = time.perf_counter() - tic
+        return events
+
+    def _reenter(self, t: float, tr: Transition, pose: Pose, pts: ScanPoints) -> list[Event]:
+        """Re-enter the known ASR ``tr.dst``: hand the pose over (``tr.rel`` is its frame seen from
+        the old one), restore its localisation reference, and take this scan as one of its views."""
+        new_pose = compose(inverse(tr.rel), pose)
+        self.current = tr.dst
+        self.localiser.reset(new_pose)
+        for xy, at in self._refs.get(tr.dst, []):
+            self.localiser.add_reference(xy, at)
+        # The builder joins consecutive viewpoints with a swept corridor; the robot did not walk
+        # from the last visit's viewpoint to here, so start the sweep afresh at the new pose.
+        self._builders[tr.dst].viewpoints.append(new_pose)
+        self._last_view = None
+        self._entry, self._armed = (tr.dst, tr.via), False
+        events: list[Event] = [ExitCrossed(t, tr.src, tr.exit, tr.dst, tr.via, False)]
+        events += self.globalmap.enter(tr.dst, tr.src, t)
+        events += self._add_view(t, pts, new_pose)
         return events
 
     def _entrance(self, asr: int, at: tuple[float, float]) -> Exit | None:
@@ -250,4 +347,9 @@ class Mapper:
         self.localiser.reset()
         self._last_view = None
         self._add_view(t, pts, (0.0, 0.0, 0.0))
-        return [AsrCreated(t, aid, origin, entered_from)]
+        events: list[Event] = [AsrCreated(t, aid, origin, entered_from)]
+        if entered_from is None:
+            # The first ASR (or the first after from_document, checked against the saved map).
+            self.globalmap.add_first(b.asr)
+            events += self.globalmap.check(aid, t)
+        return events

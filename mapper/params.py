@@ -9,7 +9,9 @@ the robot centre (the Intel and CSAIL CARMEN logs, ``robot_frontlaser_offset 0.0
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+from mapper.cycle_params import CycleParams
 
 
 @dataclass(frozen=True, slots=True)
@@ -118,3 +120,8 @@ class MapperParams:
     #: Squared Mahalanobis gate on the innovation (chi² with 3 dof at 99.9 %: 16.3). A match that
     #: disagrees more with the prediction is rejected as a false peak.
     gate_chi2: float = 16.3
+
+    # --- §4, §5, §7 topology, global metric map and cycles ----------------------------------------
+    #: Cycle detection, closing and realignment (:class:`mapper.cycle_params.CycleParams`, every field
+    #: documented there); ``CycleParams.paper()`` runs the paper's plain method alone.
+    cycles: CycleParams = field(default_factory=CycleParams)

@@ -1,0 +1,47 @@
+"""asrmap replay on small synthetic CARMEN logs: the library function and the command."""
+
+import json
+import xml.etree.ElementTree as ET
+
+import pytest
+
+from service.cli import main
+from service.replay import replay
+from tests.synthetic_runs import LOOP_WAYPOINTS, corridor_loop, drifting, path, write_carmen
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    """A raw log (drifting odometry) and a "corrected" log (true poses) of one run around the block."""
+    tmp_path = tmp_path_factory.mktemp("logs")
+    truth = path(LOOP_WAYPOINTS, laps=1.75, step=0.1)
+    raw, corrected = tmp_path / "loop-raw.clf", tmp_path / "loop-corrected.log"
+    write_carmen(raw, corridor_loop(), truth, drifting(truth))
+    write_carmen(corrected, corridor_loop(), truth)
+    return raw, corrected
+
+
+def test_replay_maps_a_raw_log_and_scores_it_against_a_truth_log(logs):
+    raw, corrected = logs
+    res = replay(raw, truth=corrected)
+    assert res.scans == sum(1 for line in raw.read_text().splitlines() if line.startswith("FLASER"))
+    assert len(res.document["asrs"]) >= 2
+    ev = res.evaluation
+    assert ev is not None and ev.cycles >= 1 and ev.false_positives == 0
+    assert res.scans_per_second > 0
+
+
+def test_asrmap_replay_prints_the_figures_and_writes_map_and_picture(logs, tmp_path, capsys):
+    raw, corrected = logs
+    out_json, out_svg = tmp_path / "map.json", tmp_path / "map.svg"
+    code = main(
+        ["replay", str(raw), "--truth", str(corrected), "--json", str(out_json), "--svg", str(out_svg)]
+    )
+    assert code == 0
+    captured = capsys.readouterr()
+    for word in ("ASRs:", "cycles:", "precision:", "revisits:", "recall:", "scans/s"):
+        assert word in captured.out
+    assert "%" in captured.err  # the progress bar
+    doc = json.loads(out_json.read_text())
+    assert doc["schema"] == "asrmap/map/1"
+    ET.parse(out_svg)

@@ -1,0 +1,47 @@
+"""Replay of the shared real logs against ground truth (slow: run with ``pytest -m slow -s``).
+
+Each case prints its figures (ASRs, cycles, precision, revisits, recall, scans/s, frame error before
+and after realignment) for the paper's plain method and with the extensions.
+"""
+
+import dataclasses
+
+import pytest
+
+from mapper.cycle_params import CycleParams
+from service.commands.replay import summary
+from service.datasets import log_path
+from service.replay import params_for_log, replay
+
+CASES = [
+    ("intel-raw-first5505.clf.gz", "intel-corrected.log.gz"),
+    ("intel-corrected.log.gz", None),
+    ("aces-corrected.log.gz", None),
+    ("mit-csail.clf.gz", "csail-robotlaser1.log.gz"),
+    ("csail-corrected.log.gz", None),
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["paper", "extended"])
+@pytest.mark.parametrize(("log", "truth"), CASES, ids=[c[0].split(".")[0] for c in CASES])
+def test_replay_of_a_real_log_keeps_cycle_precision(shared_data, log, truth, mode):
+    params = params_for_log(log_path(log))
+    cycles = CycleParams.paper() if mode == "paper" else CycleParams()
+    params = dataclasses.replace(params, cycles=cycles)
+    res = replay(log_path(log), params=params, truth=log_path(truth) if truth else None)
+    print(f"\n== {log} ({mode})" + (f", truth {truth}" if truth else ""))
+    for line in summary(res):
+        print(line)
+    ev = res.evaluation
+    assert ev is not None and ev.evaluated > 0
+    assert ev.cycles == 0 or ev.precision >= 0.98, ev.false_pairs
+    if mode == "extended" and ev.cycles:
+        assert ev.frame_error_after <= ev.frame_error_before + 0.05
+
+
+@pytest.mark.slow
+def test_intel_raw_replays_at_least_500_times_faster_than_real_time(shared_data):
+    res = replay(log_path("intel-raw-first5505.clf.gz"))
+    print(f"\nintel raw: {res.scans_per_second:,.0f} scans/s, {res.realtime_factor:,.0f}x real time")
+    assert res.realtime_factor >= 500
