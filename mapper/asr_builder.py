@@ -41,25 +41,39 @@ from mapper.types import ASR, Exit
 from mapper.view import View, valid_polygon
 
 _PARALLEL = math.cos(math.radians(20.0))
+_BRUTE_FORCE_PAIRS = 40_000  # edge-segment pairs below which numpy broadcasting beats an STRtree
 _SAMPLES = np.linspace(0.1, 0.9, 5)  # fractions along an exit tested for being covered by surfaces
+
+
+def _point_segment(p: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distances (P, S) from points (P, 2) to segments (S, 2, 2), and the fractions t along them."""
+    a = seg[:, 0]
+    ab = seg[:, 1] - a
+    ap = p[:, None, :] - a[None]
+    den = np.maximum((ab * ab).sum(-1), 1e-18)
+    t = np.clip((ap * ab[None]).sum(-1) / den, 0.0, 1.0)
+    d = ap - t[..., None] * ab[None]
+    return np.hypot(d[..., 0], d[..., 1]), t
 
 
 def _along(mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float) -> np.ndarray:
     """(E,) True where an edge (midpoint, unit direction) lies along one of the segments.
 
-    An STRtree finds the segments within ``tol`` of each midpoint, so the cost follows the
-    boundary's length, not the product of edges and stored segments.
+    Brute force in numpy while the pairs are few (an ASR boundary has tens of edges and its label
+    store a few hundred segments after pruning); an STRtree beyond, so the cost follows the
+    boundary's length rather than the product of the two.
     """
     out = np.zeros(len(mid), dtype=bool)
     if len(seg) == 0 or len(mid) == 0:
         return out
+    sv = seg[:, 1] - seg[:, 0]
+    sv = sv / np.maximum(np.hypot(sv[:, 0], sv[:, 1]), 1e-12)[:, None]
+    if len(mid) * len(seg) <= _BRUTE_FORCE_PAIRS:
+        d, _ = _point_segment(mid, seg)
+        return ((d < tol) & (np.abs(u @ sv.T) > _PARALLEL)).any(axis=1)
     tree = shapely.STRtree(shapely.linestrings(seg))
     ei, si = tree.query(shapely.points(mid), predicate="dwithin", distance=tol)
-    if len(ei) == 0:
-        return out
-    sv = seg[si, 1] - seg[si, 0]
-    sv = sv / np.maximum(np.hypot(sv[:, 0], sv[:, 1]), 1e-12)[:, None]
-    par = np.abs(np.einsum("ij,ij->i", u[ei], sv)) > _PARALLEL
+    par = np.abs(np.einsum("ij,ij->i", u[ei], sv[si])) > _PARALLEL
     out[ei[par]] = True
     return out
 
@@ -211,22 +225,23 @@ class AsrBuilder:
         if len(self.exit_segments) == 0:
             return v
         tol = self.p.simplify_tolerance
-        line = shapely.LinearRing(v)
-        pts = shapely.points(self.exit_segments.reshape(-1, 2))
-        at = shapely.line_locate_point(line, pts)  # arc length along the ring (m)
-        near = shapely.distance(pts, line) < self.p.label_tolerance
-        cum = np.concatenate([[0.0], np.cumsum(np.hypot(*(np.roll(v, -1, axis=0) - v).T))])
-        e = np.clip(np.searchsorted(cum, at, side="right") - 1, 0, len(v) - 1)
-        ok = near & (at - cum[e] > tol) & (cum[e + 1] - at > tol)
+        x = self.exit_segments.reshape(-1, 2)
+        edges = np.stack([v, np.roll(v, -1, axis=0)], axis=1)
+        d, t = _point_segment(x, edges)
+        e = np.argmin(d, axis=1)
+        i = np.arange(len(x))
+        length = np.hypot(*(edges[:, 1] - edges[:, 0]).T)[e]
+        along = t[i, e] * length  # distance from the edge's start (m)
+        ok = (d[i, e] < self.p.label_tolerance) & (along > tol) & (length - along > tol)
         if not ok.any():
             return v
-        order = np.argsort(at[ok])
-        at, e = at[ok][order], e[ok][order]
+        e, tt = e[ok], t[i, e][ok]
+        order = np.lexsort((tt, e))
+        e, tt = e[order], tt[order]
+        new = edges[e, 0] + tt[:, None] * (edges[e, 1] - edges[e, 0])
         # one vertex for coinciding insertions (the two ends of abutting exits)
-        keep = np.append(True, np.diff(at) > tol)
-        at, e = at[keep], e[keep]
-        new = shapely.get_coordinates(shapely.line_interpolate_point(line, at))
-        return np.insert(v, e + 1, new, axis=0)
+        keep = np.append(True, np.hypot(*np.diff(new, axis=0).T) > tol)
+        return np.insert(v, e[keep] + 1, new[keep], axis=0)
 
     def _relabel(self) -> None:
         p = self.p
@@ -277,13 +292,14 @@ class AsrBuilder:
         if size < 2 * self._pruned_size:
             return
         tol = self.p.label_tolerance
-        ring = self.polygon.exterior
+        v = np.asarray(self.polygon.exterior.coords)
+        edges = np.stack([v[:-1], v[1:]], axis=1)
         for name in ("surfaces", "exit_segments"):
             seg = getattr(self, name)
             if len(seg) == 0:
                 continue
-            mid = shapely.points(0.5 * (seg[:, 0] + seg[:, 1]))
-            near = shapely.distance(mid, ring) < tol + 0.5 * np.hypot(*(seg[:, 1] - seg[:, 0]).T)
+            d, _ = _point_segment(0.5 * (seg[:, 0] + seg[:, 1]), edges)
+            near = d.min(axis=1) < tol + 0.5 * np.hypot(*(seg[:, 1] - seg[:, 0]).T)
             setattr(self, name, seg[near])
         self._pruned_size = max(len(self.surfaces) + len(self.exit_segments), 16)
 
