@@ -37,7 +37,7 @@ import numpy as np
 import shapely
 from shapely.ops import nearest_points
 
-from mapper.se2 import Pose, transform_points, wrap
+from mapper.se2 import Pose, inverse, transform_points, wrap
 from mapper.types import ASR, Exit
 
 log = logging.getLogger(__name__)
@@ -52,7 +52,9 @@ class ExploreParams:
     clearance: float = 0.45
     #: m. Unknown runs shorter than this are ignored: they cannot hide a gap the robot passes.
     min_unknown: float = 0.5
-    #: m. An unknown run whose midpoint is this close to one already looked at is not visited again.
+    #: m. Unknown runs are cut into regions at most this long, each looked at on its own.
+    region_length: float = 2.0
+    #: m. An unknown region this close to one already looked at is not visited again.
     visit_radius: float = 1.0
     #: m. An unknown region within this distance, in the laser's field of view, counts as seen.
     look_distance: float = 2.5
@@ -69,6 +71,9 @@ class ExploreParams:
     through_distance: float = 1.0
     #: s. After reaching the far side, the mapper has this long to report the crossing.
     crossing_grace: float = 3.0
+    #: m. After a crossing the robot carries on to the point beyond the exit (when it is at least
+    #: this far): a new ASR planned from one view at its doorstep is mostly unknown.
+    settle_min: float = 0.3
     #: m/s, rad/s. Speed limits: well inside the P2DX's 2.2 m/s / 500 °/s, slow enough for 5 Hz scans.
     v_max: float = 0.4
     w_max: float = 0.8
@@ -162,7 +167,8 @@ class Goal:
     """One step of exploration, in the frame of ASR ``asr``.
 
     ``kind``: ``unknown`` (go to ``target``, then face ``look_at``), ``exit`` (an unexplored exit),
-    ``backtrack`` (a known exit on the way to ``path[-1]``), ``done`` or ``wait`` (no ASR yet).
+    ``backtrack`` (a known exit on the way to ``path[-1]``), ``settle`` (just crossed into ``asr``:
+    on to ``target``, the point beyond the exit), ``done`` or ``wait`` (no ASR yet).
     For exits: ``target`` is the staging point inside, ``through`` the point beyond the exit.
     """
 
@@ -218,17 +224,30 @@ def unknown_runs(asr: ASR) -> list[tuple[np.ndarray, float]]:
     return [(r, float(np.hypot(*np.diff(r, axis=0).T).sum())) for r in runs]
 
 
-def _midpoint_along(pts: np.ndarray) -> tuple[float, float]:
-    """The point halfway along the polyline ``pts`` (m)."""
+def _points_along(pts: np.ndarray, fractions: np.ndarray) -> list[tuple[float, float]]:
+    """Points at the given fractions (0..1) of the length of the polyline ``pts`` (m)."""
     step = np.hypot(*np.diff(pts, axis=0).T)
-    total = step.sum()
-    if total <= 0.0:
-        return (float(pts[0, 0]), float(pts[0, 1]))
     cum = np.concatenate([[0.0], np.cumsum(step)])
-    k = int(np.clip(np.searchsorted(cum, total / 2.0) - 1, 0, len(step) - 1))
-    f = (total / 2.0 - cum[k]) / step[k] if step[k] > 0 else 0.0
-    p = pts[k] + f * (pts[k + 1] - pts[k])
-    return (float(p[0]), float(p[1]))
+    if cum[-1] <= 0.0:
+        return [(float(pts[0, 0]), float(pts[0, 1]))] * len(fractions)
+    s = np.asarray(fractions) * cum[-1]
+    k = np.clip(np.searchsorted(cum, s) - 1, 0, len(step) - 1)
+    f = np.where(step[k] > 0, (s - cum[k]) / np.where(step[k] > 0, step[k], 1.0), 0.0)
+    p = pts[k] + f[:, None] * (pts[k + 1] - pts[k])
+    return [(float(x), float(y)) for x, y in p]
+
+
+def unknown_regions(asr: ASR, min_length: float, piece: float) -> list[tuple[float, float]]:
+    """Unknown regions of ``asr`` (ASR frame): each unknown run at least ``min_length`` m long, cut
+    into pieces of at most ``piece`` m (a long run wraps round the unseen rear of a view, and its
+    middle alone would say nothing about its ends); one point per piece, at the piece's middle."""
+    out = []
+    for pts, length in unknown_runs(asr):
+        if length < min_length:
+            continue
+        k = max(1, math.ceil(length / piece))
+        out += _points_along(pts, (np.arange(k) + 0.5) / k)
+    return out
 
 
 def _free_space(asr: ASR, clearance: float) -> shapely.Geometry:
@@ -306,10 +325,7 @@ class Planner:
         """Midpoints (ASR frame) of the unknown runs of ``asr`` still to be looked at."""
         seen = np.array(self.memory.looked.get(asr.id, []), dtype=float).reshape(-1, 2)
         out = []
-        for pts, length in unknown_runs(asr):
-            if length < self.p.min_unknown:
-                continue
-            m = _midpoint_along(pts)
+        for m in unknown_regions(asr, self.p.min_unknown, self.p.region_length):
             if len(seen) and np.hypot(*(seen - m).T).min() < self.p.visit_radius:
                 continue
             out.append(m)
@@ -355,7 +371,7 @@ class Planner:
         if path is None:
             return Goal("done", asr.id)
         hops, exit_id = path
-        ex = next(e for e in asr.exits if e.id == exit_id)
+        ex = exit_of(view, asr, exit_id)
         return self._through(view, asr, ex, "backtrack", free, hops)
 
     def _through(self, view, asr: ASR, ex: Exit, kind: str, free, path) -> Goal:
@@ -370,11 +386,11 @@ class Planner:
     def backtrack_path(self, view: MapView) -> tuple[tuple[int, ...], str] | None:
         """Shortest route (metres between global centres) from the current ASR to the nearest ASR
         with an unexplored exit: (ASR ids along it, the exit of the current ASR to take), or None."""
-        edges = _edges(view)
+        edges = _edges(view, reverse=True)
         out: dict[int, list[tuple[str, int]]] = {}
         for (a, e), b in edges.items():
             if a in view.asrs and b in view.asrs and (a, e) not in self.memory.failed_exits \
-                    and any(x.id == e for x in view.asrs[a].exits):
+                    and exit_of(view, view.asrs[a], e) is not None:
                 out.setdefault(a, []).append((e, b))
         start = view.current
         dist = {start: 0.0}
@@ -409,8 +425,11 @@ def _centre_distance(a: ASR, b: ASR) -> float:
     return float(np.hypot(*(ca - cb))) + 0.5
 
 
-def _edges(view: MapView) -> dict[tuple[int, str], int]:
-    """(ASR, exit id) -> destination ASR, from exit records and links (both directions unless one-way)."""
+def _edges(view: MapView, reverse: bool = False) -> dict[tuple[int, str], int]:
+    """(ASR, exit id) -> destination ASR, from exit records and links (both directions unless one-way).
+
+    ``reverse``: a two-way link whose arriving exit is unknown (``via`` None) also gives the way
+    back, through a *borrowed* exit: the departure exit seen from the arrival ASR (:func:`exit_of`)."""
     edges: dict[tuple[int, str], int] = {}
     for a in view.asrs.values():
         for e in a.exits:
@@ -420,7 +439,27 @@ def _edges(view: MapView) -> dict[tuple[int, str], int]:
         edges.setdefault((ln.src, ln.exit), ln.dst)
         if not ln.oneway and ln.via is not None:
             edges.setdefault((ln.dst, ln.via), ln.src)
+        elif not ln.oneway and reverse:
+            edges.setdefault((ln.dst, f"{BORROWED}{ln.src}|{ln.exit}"), ln.src)
     return edges
+
+
+BORROWED = "<"  # prefix of a borrowed exit id: "<" + source ASR + "|" + its exit id
+
+
+def exit_of(view: MapView, asr: ASR, exit_id: str) -> Exit | None:
+    """Exit ``exit_id`` of ``asr``; a borrowed id (see :func:`_edges`) gives the other ASR's exit
+    carried into this ASR's frame through the global frame both are placed in."""
+    if not exit_id.startswith(BORROWED):
+        return next((e for e in asr.exits if e.id == exit_id), None)
+    src_id, _, src_exit = exit_id[len(BORROWED):].partition("|")
+    src = view.asrs.get(int(src_id))
+    ex = next((e for e in src.exits if e.id == src_exit), None) if src is not None else None
+    if ex is None:
+        return None
+    ends = transform_points(inverse(asr.origin), transform_points(src.origin, np.array([ex.a, ex.b])))
+    a, b = ends.tolist()
+    return Exit(exit_id, (a[0], a[1]), (b[0], b[1]), src.id)
 
 
 # --- the controller ---------------------------------------------------------------------------------
@@ -525,8 +564,10 @@ class Explorer:
             pending = self.planner.pending_unknown(asr)
             return any(math.hypot(q[0] - g.look_at[0], q[1] - g.look_at[1]) < self.p.visit_radius
                        for q in pending)
+        if g.kind == "settle":
+            return True
         if g.kind in ("exit", "backtrack"):
-            ex = next((e for e in asr.exits if e.id == g.exit), None)
+            ex = exit_of(view, asr, g.exit)  # type: ignore[arg-type]
             if ex is None:
                 return False
             if g.kind == "exit":
@@ -571,7 +612,7 @@ class Explorer:
         if view.current in view.asrs:
             self.planner.observe(view.asrs[view.current], view.pose)
         if not self._still_valid(view):
-            goal = self.planner.plan(view)
+            goal = self._settle(view) or self.planner.plan(view)
             self._set_goal(goal, t)
         g = self.goal
         assert g is not None
@@ -587,7 +628,26 @@ class Explorer:
         pose = view.pose
         if g.kind == "unknown":
             return self._unknown(g, pose, points, t)
+        if g.kind == "settle":
+            if math.hypot(g.target[0] - pose[0], g.target[1] - pose[1]) < self.p.arrive_tol:  # type: ignore[index]
+                self.goal = None
+                return Command(0.0, 0.0, "in the new ASR")
+            return self._drive_to(g.target, pose, points, t, "into the new ASR")  # type: ignore[arg-type]
         return self._traverse(g, pose, points, t)
+
+    def _settle(self, view: MapView) -> Goal | None:
+        """After a crossing (the goal was an exit of another ASR), the point beyond that exit in the
+        new ASR's frame, through the global frame both ASRs are placed in."""
+        g = self.goal
+        if (g is None or g.kind not in ("exit", "backtrack") or self.phase != "through" or g.through is None
+                or g.asr not in view.asrs or view.current not in view.asrs or g.asr == view.current):
+            return None
+        old, new = view.asrs[g.asr], view.asrs[view.current]
+        glob = transform_points(old.origin, np.array([g.through]))
+        local = transform_points(inverse(new.origin), glob)[0]
+        if math.hypot(local[0] - view.pose[0], local[1] - view.pose[1]) < self.p.settle_min:
+            return None
+        return Goal("settle", new.id, target=(float(local[0]), float(local[1])))
 
     def _unknown(self, g: Goal, pose: Pose, points: np.ndarray, t: float) -> Command:
         lx, ly = g.look_at  # type: ignore[misc]

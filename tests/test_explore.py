@@ -50,21 +50,30 @@ def test_unknown_runs_join_consecutive_unknown_edges_across_the_wrap():
 
 
 def test_a_room_with_an_unknown_edge_sends_the_robot_there():
-    a = room(1, 0, 0, 6, 4, edges=("surface", "unknown", "surface", "surface"))
+    a = room(1, 0, 0, 6, 2, edges=("surface", "unknown", "surface", "surface"))
     g = Planner().plan(view([a], 1))
-    assert g.kind == "unknown" and g.look_at == (6.0, 2.0)
+    assert g.kind == "unknown" and g.look_at == (6.0, 1.0)
     # The target is inside, the clearance away from the boundary, nearest the unknown edge.
-    assert g.target == pytest.approx((6.0 - P.clearance, 2.0))
-    cmd = Explorer().step(view([a], 1, pose=(1.0, 2.0, 0.0)), np.zeros((0, 2)), 0.0)
+    assert g.target == pytest.approx((6.0 - P.clearance, 1.0))
+    cmd = Explorer().step(view([a], 1, pose=(1.0, 1.0, 0.0)), np.zeros((0, 2)), 0.0)
     assert cmd.v > 0.0 and abs(cmd.w) < 1e-9
+
+
+def test_a_long_unknown_run_is_cut_into_regions_looked_at_one_by_one():
+    a = room(1, 0, 0, 6, 4, edges=("surface", "unknown", "surface", "surface"))
+    planner = Planner()
+    assert planner.pending_unknown(a) == [(6.0, 1.0), (6.0, 3.0)]
+    # From (4, 1) facing east, the lower region is in view and near: retired without a visit.
+    assert planner.observe(a, (4.0, 1.0, 0.0)) == 1
+    assert planner.plan(view([a], 1)).look_at == (6.0, 3.0)
 
 
 def test_short_unknown_runs_and_ones_already_looked_at_are_skipped():
     a = room(1, 0, 0, 6, 0.4, edges=("surface", "unknown", "surface", "surface"))  # 0.4 m: too short
     assert Planner().plan(view([a], 1)).kind == "done"
-    b = room(2, 0, 0, 6, 4, edges=("surface", "unknown", "surface", "surface"))
+    b = room(2, 0, 0, 6, 2, edges=("surface", "unknown", "surface", "surface"))
     planner = Planner()
-    planner.looked_at(2, (6.0, 2.2))
+    planner.looked_at(2, (6.0, 1.2))
     assert planner.plan(view([b], 2)).kind == "done"
 
 
@@ -114,6 +123,16 @@ def test_backtracking_follows_links_as_well_as_exit_records():
     links = [LinkRef(1, "1/0", 2, "2/0")]
     g = Planner().plan(view([a1, a2], 2, links=links))
     assert g.kind == "backtrack" and g.exit == "2/0" and g.path == (2, 1)
+
+
+def test_a_link_without_an_arriving_exit_is_travelled_back_through_the_departure_exit():
+    a1 = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3), to=2), door(1, 1, (0, 1), (0, 3))])
+    a2 = room(2, 0, 0, 4, 4, origin=(4.5, 0.0, 0.0))  # the mapper gave it no exit back
+    g = Planner().plan(view([a1, a2], 2, pose=(1.0, 2.0, 0.0), links=[LinkRef(1, "1/0", 2, None)]))
+    assert g.kind == "backtrack" and g.path == (2, 1) and g.exit == "<1|1/0"
+    # 1's exit at x = 4 is x = -0.5 in 2's frame; through it means going west.
+    assert g.exit_mid == pytest.approx((-0.5, 2.0))
+    assert g.through[0] < -0.5
 
 
 def test_a_one_way_link_says_nothing_about_the_way_back():
@@ -193,7 +212,7 @@ def test_steers_around_an_obstacle_in_the_way():
 
 
 def test_no_progress_for_the_stuck_time_triggers_recovery_and_gives_the_goal_up():
-    a = room(1, -5, -5, 5, 5, edges=("surface", "unknown", "surface", "surface"))
+    a = room(1, -5, -1, 5, 1, edges=("surface", "unknown", "surface", "surface"))
     ex = Explorer()
     v = view([a], 1, pose=(0.0, 0.0, 0.0))
     pts = wall_points(3.0, -3, 3)
