@@ -44,10 +44,6 @@ class View:
     exits: np.ndarray
 
 
-def _point(seg: np.ndarray, k: int, t: float) -> np.ndarray:
-    return seg[k, 0] + t * (seg[k, 1] - seg[k, 0])
-
-
 def build_view(surf: Surfaces, p: MapperParams, covers: Covers | None = None) -> View:
     """The truncated, labelled view polygon of one scan; see the module docstring."""
     if covers is None:
@@ -56,41 +52,38 @@ def build_view(surf: Surfaces, p: MapperParams, covers: Covers | None = None) ->
     m = len(seg)
     t0, t1 = np.zeros(m), np.ones(m)
     alive = np.ones(m, dtype=bool)
-    k = np.arange(m)
-    starts = {}
-    for lo, hi, lab in zip(covers.lo.tolist(), covers.hi.tolist(), covers.label.tolist(), strict=True):
-        # surfaces wholly inside the cover were seen through it; those it lands on are trimmed
-        alive &= ~((2 * k > lo + 1e-9) & (2 * k + 1 < hi - 1e-9))
-        klo, khi = int(lo // 2), int(hi // 2)
-        if klo < m and lo - 2 * klo <= 1.0:
-            t1[klo] = min(t1[klo], lo - 2 * klo)
-        if khi < m and hi - 2 * khi <= 1.0:
-            t0[khi] = max(t0[khi], hi - 2 * khi)
-        starts[round(lo, 9)] = lab
+    if len(covers):
+        lo, hi = covers.lo, covers.hi
+        k2 = 2.0 * np.arange(m)
+        # surfaces wholly inside a cover were seen through it; those it lands on are trimmed
+        alive = ~((k2[None, :] > lo[:, None] + 1e-9) & (k2[None, :] + 1 < hi[:, None] - 1e-9)).any(axis=0)
+        klo, khi = (lo // 2).astype(int), (hi // 2).astype(int)
+        a_ok = (klo < m) & (lo - 2 * klo <= 1.0)
+        b_ok = (khi < m) & (hi - 2 * khi <= 1.0)
+        np.minimum.at(t1, klo[a_ok], (lo - 2 * klo)[a_ok])
+        np.maximum.at(t0, khi[b_ok], (hi - 2 * khi)[b_ok])
     alive &= t1 >= t0 - 1e-9
+    starts = dict(zip(np.round(covers.lo, 9).tolist(), covers.label.tolist(), strict=True))
 
-    rear = np.array([-p.rear_closure, 0.0])
-    verts: list[np.ndarray] = [rear]
-    labels: list[str] = []
-    pending = UNKNOWN
-    kept = np.flatnonzero(alive).tolist()
-    for i, kk in enumerate(kept):  # one step per surface, not per beam
-        verts.append(_point(seg, kk, t0[kk]))
-        labels.append(pending)
-        verts.append(_point(seg, kk, t1[kk]))
-        labels.append(SURFACE)
-        lab = starts.get(round(2 * kk + t1[kk], 9))
+    kk = np.flatnonzero(alive)
+    d = seg[kk, 1] - seg[kk, 0]
+    a = seg[kk, 0] + t0[kk, None] * d
+    b = seg[kk, 0] + t1[kk, None] * d
+    v = np.empty((1 + 2 * len(kk), 2))
+    v[0] = (-p.rear_closure, 0.0)
+    v[1::2], v[2::2] = a, b
+    ends = np.round(2 * kk + t1[kk], 9).tolist()
+    same = (surf.cluster[kk[1:]] == surf.cluster[kk[:-1]]).tolist()
+    labels = [UNKNOWN]
+    for i, end in enumerate(ends):  # one step per surface, not per beam
+        lab = starts.get(end)
         if lab is None:
-            nxt = kept[i + 1] if i + 1 < len(kept) else None
-            lab = SURFACE if nxt is not None and surf.cluster[nxt] == surf.cluster[kk] else UNKNOWN
-        pending = lab
-    labels.append(UNKNOWN)
-    v = np.asarray(verts)
+            lab = SURFACE if i < len(same) and same[i] else UNKNOWN
+        labels += (SURFACE, lab)
+    labels[-1] = UNKNOWN  # from the last surface back round the unseen rear
     v, labels = _drop_repeats(v, labels)
 
-    kk = np.asarray(kept, dtype=int)
-    d = seg[kk, 1] - seg[kk, 0]
-    surfaces = np.stack([seg[kk, 0] + t0[kk, None] * d, seg[kk, 0] + t1[kk, None] * d], axis=1)
+    surfaces = np.stack([a, b], axis=1)
     closed = covers.label == CLOSED
     if closed.any():
         surfaces = np.concatenate([surfaces, np.stack([covers.a[closed], covers.b[closed]], axis=1)])
