@@ -229,20 +229,19 @@ class Pioneer:
 
     def stop(self) -> bool:
         """STOP: decelerate to a standstill. Best effort: False if the command could not be written."""
-        try:
-            self._send(command(Command.STOP))
-            return True
-        except PioneerError as exc:
-            log.warning("could not send STOP: %s", exc)
-            return False
+        return self._send_anyway(Command.STOP)
 
     def e_stop(self) -> bool:
         """E_STOP: stop at once, overriding the deceleration limit. Best effort, like :meth:`stop`."""
+        return self._send_anyway(Command.E_STOP)
+
+    def _send_anyway(self, cmd: Command) -> bool:
+        # Stopping must be tried whatever the link state (a robot still listening will obey).
         try:
-            self._send(command(Command.E_STOP))
+            self._send(command(cmd))
             return True
         except PioneerError as exc:
-            log.warning("could not send E_STOP: %s", exc)
+            log.warning("could not send %s: %s", cmd.name, exc)
             return False
 
     def sonar(self, on: bool) -> None:

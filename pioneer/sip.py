@@ -33,6 +33,10 @@ _OPTIONAL = (
 )
 
 
+def _flag(mask: int, doc: str) -> property:
+    return property(lambda self: bool(self.flags & mask), doc=doc)
+
+
 @dataclass(frozen=True)
 class SIP:
     """A standard server information packet, in wire units.
@@ -87,9 +91,11 @@ class SIP:
         """Battery voltage in volts (the finer BATTERYX10 when the firmware sends it)."""
         return (self.battery_x10 if self.battery_x10 is not None else self.battery) / 10.0
 
-    @property
-    def motors_enabled(self) -> bool:
-        return bool(self.flags & 0x0001)
+    motors_enabled = _flag(0x0001, "The motors are enabled (FLAGS bit 0).")
+    e_stop = _flag(0x0020, "The STOP / emergency-stop button is pressed (FLAGS bit 5).")
+    e_stall = _flag(0x0040, "E_STALL: a stall stops the robot (FLAGS bit 6).")
+    joystick_button = _flag(0x0200, "The joystick button is pressed (FLAGS bit 9).")
+    charger_power_good = _flag(0x0400, "The charger's power is good (FLAGS bit 10).")
 
     @property
     def sonar_arrays(self) -> tuple[bool, bool, bool, bool]:
@@ -98,26 +104,9 @@ class SIP:
         return bool(f & 0x02), bool(f & 0x04), bool(f & 0x08), bool(f & 0x10)
 
     @property
-    def e_stop(self) -> bool:
-        """The STOP / emergency-stop button is pressed (FLAGS bit 5)."""
-        return bool(self.flags & 0x20)
-
-    @property
-    def e_stall(self) -> bool:
-        return bool(self.flags & 0x40)
-
-    @property
     def ledge_irs(self) -> tuple[bool, bool]:
         """Left and right ledge IR sensors triggered (FLAGS bits 7, 8)."""
         return bool(self.flags & 0x80), bool(self.flags & 0x100)
-
-    @property
-    def joystick_button(self) -> bool:
-        return bool(self.flags & 0x200)
-
-    @property
-    def charger_power_good(self) -> bool:
-        return bool(self.flags & 0x400)
 
     def sonar_mm(self, range_conv: float) -> dict[int, float]:
         """This SIP's sonar readings in mm by transducer number (RangeConvFactor ``range_conv``)."""

@@ -134,8 +134,8 @@ def test_square_odometry_matches_the_robot_and_the_true_pose_within_the_error_mo
         with _pioneer(pty_pair) as robot:
             _settle(robot, 2)
             for _ in range(4):
-                _drive_until(robot, 1.0, 0.0, lambda a, b: math.hypot(b.x - a.x, b.y - a.y) >= 0.4)
-                _drive_until(robot, 0.0, 4.0,
+                _drive_until(robot, 2.0, 0.0, lambda a, b: math.hypot(b.x - a.x, b.y - a.y) >= 0.4)
+                _drive_until(robot, 0.0, 6.0,
                              lambda a, b: normalize_angle(b.theta - a.theta) >= math.radians(85))
             _settle(robot, 5)
             odo, hist = robot.odometry, robot.history()
