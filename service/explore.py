@@ -122,7 +122,7 @@ class LinkRef:
     through ``via``; both ways unless ``oneway``."""
 
     src: int
-    exit: str
+    exit: str | None
     dst: int
     via: str | None = None
     oneway: bool = False
@@ -152,10 +152,10 @@ def links_of(links: Iterable[Any]) -> list[LinkRef]:
     out = []
     for ln in links:
         if isinstance(ln, dict):
-            out.append(LinkRef(int(ln["from"]), str(ln["exit"]), int(ln["to"]), ln.get("via"),
+            out.append(LinkRef(int(ln["from"]), ln.get("exit"), int(ln["to"]), ln.get("via"),
                                bool(ln.get("oneway", False))))
         else:
-            out.append(LinkRef(int(ln.src), str(ln.exit), int(ln.dst), ln.via, bool(ln.oneway)))
+            out.append(LinkRef(int(ln.src), ln.exit, int(ln.dst), ln.via, bool(ln.oneway)))
     return out
 
 
@@ -386,7 +386,7 @@ class Planner:
     def backtrack_path(self, view: MapView) -> tuple[tuple[int, ...], str] | None:
         """Shortest route (metres between global centres) from the current ASR to the nearest ASR
         with an unexplored exit: (ASR ids along it, the exit of the current ASR to take), or None."""
-        edges = _edges(view, reverse=True)
+        edges = _edges(view, borrow=True)
         out: dict[int, list[tuple[str, int]]] = {}
         for (a, e), b in edges.items():
             if a in view.asrs and b in view.asrs and (a, e) not in self.memory.failed_exits \
@@ -425,22 +425,35 @@ def _centre_distance(a: ASR, b: ASR) -> float:
     return float(np.hypot(*(ca - cb))) + 0.5
 
 
-def _edges(view: MapView, reverse: bool = False) -> dict[tuple[int, str], int]:
+def _edges(view: MapView, borrow: bool = False) -> dict[tuple[int, str], int]:
     """(ASR, exit id) -> destination ASR, from exit records and links (both directions unless one-way).
 
-    ``reverse``: a two-way link whose arriving exit is unknown (``via`` None) also gives the way
-    back, through a *borrowed* exit: the departure exit seen from the arrival ASR (:func:`exit_of`)."""
+    ``borrow``: where the mapper recorded only one side's exit of a link (the other is None), the
+    missing side crosses the known one, *borrowed* into its frame (:func:`exit_of`); and a
+    duplicate ASR (the same space as its original, method.md §5.5) may leave through its
+    original's exits, borrowed likewise."""
     edges: dict[tuple[int, str], int] = {}
     for a in view.asrs.values():
         for e in a.exits:
             if e.to is not None:
                 edges[(a.id, e.id)] = e.to
     for ln in view.links:
-        edges.setdefault((ln.src, ln.exit), ln.dst)
+        if ln.exit is not None:
+            edges.setdefault((ln.src, ln.exit), ln.dst)
+        elif borrow and ln.via is not None:
+            edges.setdefault((ln.src, f"{BORROWED}{ln.dst}|{ln.via}"), ln.dst)
         if not ln.oneway and ln.via is not None:
             edges.setdefault((ln.dst, ln.via), ln.src)
-        elif not ln.oneway and reverse:
+        elif not ln.oneway and borrow and ln.exit is not None:
             edges.setdefault((ln.dst, f"{BORROWED}{ln.src}|{ln.exit}"), ln.src)
+    if borrow:
+        for a in view.asrs.values():
+            m = a.duplicate_of
+            if m is None or m not in view.asrs:
+                continue
+            for (src, e), dst in list(edges.items()):
+                if src == m and not e.startswith(BORROWED) and dst != a.id:
+                    edges.setdefault((a.id, f"{BORROWED}{m}|{e}"), dst)
     return edges
 
 

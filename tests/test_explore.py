@@ -135,6 +135,19 @@ def test_a_link_without_an_arriving_exit_is_travelled_back_through_the_departure
     assert g.through[0] < -0.5
 
 
+def test_a_duplicate_leaves_through_its_original_s_exits():
+    # 1 (explored) -- 2 (one exit left); the robot stands in 3, a duplicate of 1 with no known way out.
+    a1 = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3), to=2)])
+    a2 = room(2, 0, 0, 4, 4, origin=(4.0, 0.0, 0.0), exits=[door(2, 0, (0, 1), (0, 3), to=1),
+                                                             door(2, 1, (4, 1), (4, 3))])
+    a3 = room(3, 0, 0, 4, 4, origin=(0.2, 0.0, 0.0), dup=1)
+    links = [LinkRef(3, None, 2, "2/0", oneway=True)]  # as the mapper leaves it after a closure
+    g = Planner().plan(view([a1, a2, a3], 3, pose=(1.0, 2.0, 0.0), links=links))
+    assert g.kind == "backtrack" and g.path == (3, 2)
+    assert g.exit in ("<1|1/0", "<2|2/0")
+    assert g.exit_mid == pytest.approx((3.8, 2.0))  # the doorway at x = 4, seen from 3's frame
+
+
 def test_a_one_way_link_says_nothing_about_the_way_back():
     a1 = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3)), door(1, 1, (0, 1), (0, 3))])
     a2 = room(2, 0, 0, 4, 4, origin=(4.0, 0.0, 0.0), exits=[door(2, 0, (0, 1), (0, 3))])
