@@ -72,7 +72,7 @@ class PacketReader:
     __slots__ = ("_buf", "bad_checksums", "bad_counts", "bytes_skipped", "max_count", "packets_ok")
 
     def __init__(self, max_count: int = MAX_COUNT) -> None:
-        self._buf = bytearray()
+        self._buf = b""
         self.max_count = max_count
         self.packets_ok = 0
         self.bad_checksums = 0
@@ -81,8 +81,8 @@ class PacketReader:
 
     def feed(self, data: bytes) -> list[Packet]:
         """Append ``data`` and return every packet completed by it, in order."""
-        buf = self._buf
-        buf += data
+        # Work on one immutable copy per call: packet bodies are then plain slices (one copy each).
+        buf = self._buf + bytes(data) if self._buf else bytes(data)
         n = len(buf)
         out: list[Packet] = []
         i = 0
@@ -107,7 +107,7 @@ class PacketReader:
             end = j + 3 + count
             if end > n:
                 break
-            body = bytes(buf[j + 3 : end - 2])
+            body = buf[j + 3 : end - 2]
             if checksum(body) != (buf[end - 2] << 8 | buf[end - 1]):
                 self.bad_checksums += 1
                 self.bytes_skipped += 1
@@ -116,12 +116,12 @@ class PacketReader:
             out.append(Packet(body))
             self.packets_ok += 1
             i = end
-        del buf[:i]
+        self._buf = buf[i:]
         return out
 
     def clear(self) -> None:
         """Forget a partly received packet (the port was flushed or reopened); counters stay."""
-        self._buf.clear()
+        self._buf = b""
 
     @property
     def pending(self) -> int:
