@@ -85,27 +85,19 @@ def _toward(value: float, target: float, up: float, down: float, dt: float) -> f
     return value + math.copysign(step, target - value)
 
 
-class DiffDrive:
-    """A differential-drive robot obeying P2OS motion commands.
+class Setpoints:
+    """The P2OS motion setpoints every body keeps, whether or not it acts on them.
 
-    Setpoints: translational ``v_cmd`` (VEL), rotational ``w_cmd`` (RVEL/ROTATE) or a heading in the
-    odometry frame (HEAD/DHEAD); VEL2 sets both from wheel speeds. The actual velocities ``v``, ``w``
-    approach them within the acceleration limits (SETA/SETRA) and the maxima (SETV/SETRV). With the
-    motors disabled the robot slows to a stop but keeps its setpoints: P2OS resumes them on ENABLE 1.
+    Translational ``v_cmd`` (VEL, m/s), rotational ``w_cmd`` (RVEL/ROTATE, rad/s) or a heading in
+    the odometry frame (HEAD/DHEAD, rad); VEL2 sets both from wheel speeds. ``max_v``/``max_w``
+    (SETV/SETRV) clamp them; ``accel``/``decel`` (m/s²) and ``rot_accel``/``rot_decel`` (rad/s²)
+    are SETA/SETRA. Subclasses supply the poses and :meth:`step` (see :class:`Body`).
     """
 
-    def __init__(
-        self,
-        params: RobotParams = P2DX,
-        start_pose: Pose = (0.0, 0.0, 0.0),
-        odometry_error: OdometryError | None = None,
-        motion_hook: MotionHook | None = None,
-    ) -> None:
+    odometry_pose: Pose
+
+    def __init__(self, params: RobotParams = P2DX) -> None:
         self.params = params
-        self.error = odometry_error or OdometryError()
-        self.motion_hook = motion_hook
-        self.true_pose: Pose = tuple(map(float, start_pose))  # type: ignore[assignment]
-        self.odometry_pose: Pose = self.true_pose
         self.v = self.w = 0.0
         self.v_cmd = self.w_cmd = 0.0
         self.heading_target: float | None = None
@@ -116,12 +108,7 @@ class DiffDrive:
         self.rot_accel = math.radians(params.rot_accel)
         self.rot_decel = math.radians(params.rot_decel)
         self.motors_enabled = False
-        self.left_speed = self.right_speed = 0.0  # measured by the encoders, m/s
-        self.left_stall = self.right_stall = False
-        self.left_travel = self.right_travel = 0.0  # encoder-measured wheel travel, m
-        self.distance = 0.0  # true distance travelled, m
 
-    # --- setpoints ------------------------------------------------------------------------------
     def set_velocity(self, v: float) -> None:
         self.v_cmd = max(-self.max_v, min(self.max_v, v))
 
@@ -153,6 +140,32 @@ class DiffDrive:
         if self.heading_target is not None:
             self.heading_target = None
             self.w_cmd = 0.0
+
+
+class DiffDrive(Setpoints):
+    """A differential-drive robot obeying P2OS motion commands (:class:`Setpoints`).
+
+    The actual velocities ``v``, ``w`` approach the setpoints within the acceleration limits and the
+    maxima. With the motors disabled the robot slows to a stop but keeps its setpoints: P2OS
+    resumes them on ENABLE 1.
+    """
+
+    def __init__(
+        self,
+        params: RobotParams = P2DX,
+        start_pose: Pose = (0.0, 0.0, 0.0),
+        odometry_error: OdometryError | None = None,
+        motion_hook: MotionHook | None = None,
+    ) -> None:
+        super().__init__(params)
+        self.error = odometry_error or OdometryError()
+        self.motion_hook = motion_hook
+        self.true_pose: Pose = tuple(map(float, start_pose))  # type: ignore[assignment]
+        self.odometry_pose: Pose = self.true_pose
+        self.left_speed = self.right_speed = 0.0  # measured by the encoders, m/s
+        self.left_stall = self.right_stall = False
+        self.left_travel = self.right_travel = 0.0  # encoder-measured wheel travel, m
+        self.distance = 0.0  # true distance travelled, m
 
     # --- motion ---------------------------------------------------------------------------------
     def _rotation_target(self, dt: float) -> float:
