@@ -41,7 +41,7 @@ from mapper.types import ASR, Exit
 from mapper.view import View, valid_polygon
 
 _PARALLEL = math.cos(math.radians(20.0))
-_BRUTE_FORCE_PAIRS = 40_000  # edge-segment pairs below which numpy broadcasting beats an STRtree
+_BRUTE_FORCE_PAIRS = 20_000  # edge-segment pairs below which numpy broadcasting beats an STRtree
 _SAMPLES = np.linspace(0.1, 0.9, 5)  # fractions along an exit tested for being covered by surfaces
 
 
@@ -54,6 +54,20 @@ def _point_segment(p: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarr
     t = np.clip((ap * ab[None]).sum(-1) / den, 0.0, 1.0)
     d = ap - t[..., None] * ab[None]
     return np.hypot(d[..., 0], d[..., 1]), t
+
+
+def _nearest_segment(p: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each point (P, 2): the index of its nearest segment of ``seg`` (S, 2, 2) and the distance."""
+    if len(p) * len(seg) <= _BRUTE_FORCE_PAIRS:
+        d, _ = _point_segment(p, seg)
+        e = np.argmin(d, axis=1)
+        return e, d[np.arange(len(p)), e]
+    tree = shapely.STRtree(shapely.linestrings(seg))
+    (pi, si), dist = tree.query_nearest(shapely.points(p), return_distance=True, all_matches=False)
+    e = np.zeros(len(p), dtype=int)
+    d = np.full(len(p), np.inf)
+    e[pi], d[pi] = si, dist
+    return e, d
 
 
 def _along(mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float) -> np.ndarray:
@@ -76,6 +90,21 @@ def _along(mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float) -> np.nd
     par = np.abs(np.einsum("ij,ij->i", u[ei], sv[si])) > _PARALLEL
     out[ei[par]] = True
     return out
+
+
+def _add_new(store: np.ndarray, seg: np.ndarray, tol: float) -> np.ndarray:
+    """``store`` plus those of ``seg`` it does not already cover (both (N, 2, 2), m).
+
+    A wall seen from every viewpoint would otherwise be stored once per view: a new segment is
+    kept unless its two ends and its midpoint all lie along stored ones (within ``tol``, parallel).
+    """
+    if len(store) == 0 or len(seg) == 0:
+        return np.concatenate([store, seg]) if len(seg) else store
+    u = seg[:, 1] - seg[:, 0]
+    u = u / np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-12)[:, None]
+    pts = np.concatenate([seg[:, 0], 0.5 * (seg[:, 0] + seg[:, 1]), seg[:, 1]])
+    covered = _along(pts, np.tile(u, (3, 1)), store, tol).reshape(3, -1).all(axis=0)
+    return np.concatenate([store, seg[~covered]])
 
 
 def _transform_segments(pose: Pose, seg: np.ndarray) -> np.ndarray:
@@ -118,8 +147,10 @@ class AsrBuilder:
             self._record(pose, robot)
             return False
         self.polygon = self._single_ring(grown, robot)
-        self.surfaces = np.concatenate([self.surfaces, world_surfaces])
-        self.exit_segments = np.concatenate([self.exit_segments, _transform_segments(pose, view.exits)])
+        self.surfaces = _add_new(self.surfaces, world_surfaces, p.simplify_tolerance)
+        self.exit_segments = _add_new(
+            self.exit_segments, _transform_segments(pose, view.exits), p.simplify_tolerance
+        )
         self._record(pose, robot)
         self._relabel()
         return True
@@ -227,15 +258,16 @@ class AsrBuilder:
         tol = self.p.simplify_tolerance
         x = self.exit_segments.reshape(-1, 2)
         edges = np.stack([v, np.roll(v, -1, axis=0)], axis=1)
-        d, t = _point_segment(x, edges)
-        e = np.argmin(d, axis=1)
-        i = np.arange(len(x))
-        length = np.hypot(*(edges[:, 1] - edges[:, 0]).T)[e]
-        along = t[i, e] * length  # distance from the edge's start (m)
-        ok = (d[i, e] < self.p.label_tolerance) & (along > tol) & (length - along > tol)
+        e, dist = _nearest_segment(x, edges)
+        a = edges[e, 0]
+        ab = edges[e, 1] - a
+        length = np.hypot(ab[:, 0], ab[:, 1])
+        t = np.clip(np.einsum("ij,ij->i", x - a, ab) / np.maximum(length * length, 1e-18), 0.0, 1.0)
+        along = t * length  # distance from the edge's start (m)
+        ok = (dist < self.p.label_tolerance) & (along > tol) & (length - along > tol)
         if not ok.any():
             return v
-        e, tt = e[ok], t[i, e][ok]
+        e, tt = e[ok], t[ok]
         order = np.lexsort((tt, e))
         e, tt = e[order], tt[order]
         new = edges[e, 0] + tt[:, None] * (edges[e, 1] - edges[e, 0])
@@ -298,8 +330,8 @@ class AsrBuilder:
             seg = getattr(self, name)
             if len(seg) == 0:
                 continue
-            d, _ = _point_segment(0.5 * (seg[:, 0] + seg[:, 1]), edges)
-            near = d.min(axis=1) < tol + 0.5 * np.hypot(*(seg[:, 1] - seg[:, 0]).T)
+            _, d = _nearest_segment(0.5 * (seg[:, 0] + seg[:, 1]), edges)
+            near = d < tol + 0.5 * np.hypot(*(seg[:, 1] - seg[:, 0]).T)
             setattr(self, name, seg[near])
         self._pruned_size = max(len(self.surfaces) + len(self.exit_segments), 16)
 
