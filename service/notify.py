@@ -22,6 +22,7 @@ class Notifier:
         env = os.environ if environ is None else environ
         self.path = env.get("NOTIFY_SOCKET", "") if socket_path is None else socket_path
         self._sock: socket.socket | None = None
+        self.dropped = 0
         self.watchdog_interval = watchdog_interval(env)
 
     @property
@@ -32,6 +33,8 @@ class Notifier:
         """Send ``fields`` (``"READY=1"``, ``"STATUS=..."``) as one datagram; False when not sent.
 
         Failures are logged, never raised: losing a status line must not stop the robot's service.
+        The socket is non-blocking: a receiver that does not read (its queue holds only
+        ``net.unix.max_dgram_qlen`` datagrams) must not wedge the main loop; the message is dropped.
         """
         if not self.path:
             return False
@@ -39,8 +42,13 @@ class Notifier:
         try:
             if self._sock is None:
                 self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+                self._sock.setblocking(False)
             self._sock.sendto("\n".join(fields).encode("utf-8"), addr)
             return True
+        except BlockingIOError:
+            self.dropped += 1
+            log.debug("sd_notify to %s: the receiver's queue is full; message dropped", self.path)
+            return False
         except OSError as exc:
             log.warning("sd_notify to %s failed: %s", self.path, exc)
             return False

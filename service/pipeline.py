@@ -533,7 +533,10 @@ class Service:
             self.bus.close()
             raise
         try:
-            mapper = self._new_mapper(cfg, store.load())
+            stored = store.load()
+            mapper = self._new_mapper(cfg, stored)
+            if stored and stored.get("asrs") and not document_of(mapper).get("asrs"):
+                store.archive("not-continued")
             self.worker = MapperWorker(mapper, store, None, self.scans, self.odometry, cfg.robot.name,
                                        1.0 / cfg.publish.pose_rate, cfg.publish.scans)
         except BaseException:

@@ -145,6 +145,19 @@ class MapStore:
         self._asrs, self._links, self._cycles, self._extra = asrs, links, cycles, extra
         return Synced(n, [i for i, _ in up_asrs])
 
+    def archive(self, why: str) -> Path:
+        """Move the stored map aside (``<name>.<why>-<unix time>``) and start an empty one; returns
+        where it went. For a map the mapper cannot continue: never overwrite what was mapped."""
+        self._db.close()
+        aside = self.path.with_name(f"{self.path.name}.{why}-{int(time.time())}")
+        os.replace(self.path, aside)
+        for suffix in ("-wal", "-shm"):
+            Path(str(self.path) + suffix).unlink(missing_ok=True)
+        log.warning("map store %s moved to %s (%s)", self.path, aside, why)
+        self._db = self._connect()
+        self._read_rows()
+        return aside
+
     def close(self) -> None:
         self._db.close()
 

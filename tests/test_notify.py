@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import socket
+import time
 import uuid
 
 import pytest
@@ -64,3 +65,11 @@ def test_watchdog_interval_from_environment():
     assert watchdog_interval({"WATCHDOG_USEC": "10000000", "WATCHDOG_PID": str(os.getpid())}) == 10.0
     assert watchdog_interval({"WATCHDOG_USEC": "10000000", "WATCHDOG_PID": "1"}) is None
     assert watchdog_interval({}) is None and watchdog_interval({"WATCHDOG_USEC": "x"}) is None
+
+
+def test_a_receiver_that_does_not_read_never_blocks_the_sender(listener):
+    _, path = listener
+    n = Notifier(environ={"NOTIFY_SOCKET": path})
+    t = time.monotonic()
+    sent = [n.status("x" * 1000) for _ in range(5000)]
+    assert time.monotonic() - t < 2.0 and not all(sent) and n.dropped == sent.count(False)

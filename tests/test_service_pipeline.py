@@ -219,7 +219,7 @@ def test_a_scan_before_any_odometry_is_counted_not_mapped(tmp_path):
 class Bench:
     """A Service on stand-in devices, run in a thread, with a notify socket and a zenoh client."""
 
-    def __init__(self, tmp_path, allow=()):
+    def __init__(self, tmp_path, allow=(), new_mapper=lambda c, doc: FakeMapper(doc)):
         self.ep = f"tcp/127.0.0.1:{free_port()}"
         self.cfg = dataclasses.replace(
             Config(), zenoh=ZenohConfig(listen=(self.ep,), allow_commands=allow),
@@ -238,7 +238,7 @@ class Bench:
             open_pioneer=lambda c: self._add(self.pioneers, lambda: SimpleNamespace(
                 t=time.monotonic(), x=time.monotonic() - t0, y=0.0, theta=0.0, battery=12.5), 0.01),
             open_laser=lambda c: self._add(self.lasers, lambda: _scan(time.monotonic()), 0.02),
-            new_mapper=lambda c, doc: FakeMapper(doc))
+            new_mapper=new_mapper)
         self.stop = threading.Event()
         self.result: list = []
         self.thread = threading.Thread(target=lambda: self.result.append(self.service.run(self.stop)))
@@ -311,3 +311,14 @@ def test_the_map_survives_a_restart_of_the_service(tmp_path):
     with Bench(tmp_path) as b:
         b.messages("READY=1")
         assert b.service.worker.mapper.asrs.keys() >= {a["id"] for a in before["asrs"]}
+
+
+def test_a_stored_map_the_mapper_does_not_continue_is_archived_not_overwritten(tmp_path):
+    with Bench(tmp_path) as b:
+        b.messages("READY=1")
+        time.sleep(0.2)
+    with Bench(tmp_path, new_mapper=lambda c, doc: FakeMapper(None)) as b:
+        b.messages("READY=1")
+    (aside,) = tmp_path.glob("map.sqlite.not-continued-*")
+    with MapStore(aside) as s:
+        assert len(s.load()["asrs"]) >= 2

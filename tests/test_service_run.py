@@ -3,7 +3,10 @@ ptys (behind udev-like symlinks), watched over Zenoh from this process."""
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import json
+import math
 import queue
 import subprocess
 import sys
@@ -15,7 +18,9 @@ import zenoh
 
 from laser.emulator import LMS2xxEmulator
 from laser.sources import room
+from mapper.se2 import interpolate, wrap
 from pioneer.emulator import PioneerEmulator
+from pioneer.physics import DiffDrive
 from service.bench.service import ROOT, PluggedDevice, ServiceProcess, free_port, write_config
 from service.bus import client_config
 
@@ -23,10 +28,11 @@ from service.bus import client_config
 class Rig:
     """Emulated robot + ``asrmap run`` + a Zenoh session recording events and liveliness."""
 
-    def __init__(self, tmp: Path, plug_laser: bool = True, **extra: dict):
+    def __init__(self, tmp: Path, plug_laser: bool = True, make_robot=None, make_laser=None, **extra: dict):
         self.tmp = tmp
-        self.robot = PluggedDevice(tmp / "pioneer", lambda fd: PioneerEmulator(fd))
-        self.laser = PluggedDevice(tmp / "sick", lambda fd: LMS2xxEmulator(fd, room(), rate_limit=False))
+        self.robot = PluggedDevice(tmp / "pioneer", make_robot or (lambda fd: PioneerEmulator(fd)))
+        self.laser = PluggedDevice(tmp / "sick", make_laser or (
+            lambda fd: LMS2xxEmulator(fd, room(), rate_limit=False)))
         if not plug_laser:
             self.laser.unplug()
         self.ep = f"tcp/127.0.0.1:{free_port()}"
@@ -207,3 +213,60 @@ def test_a_busy_zenoh_port_is_one_clear_line(rig, tmp_path):
     assert r.returncode == 2 and len(lines) == 1, r.stderr
     assert lines[0].startswith("asrmap run: cannot open the zenoh session (listen ") and "in use" in lines[0]
     assert ".rs:" not in lines[0] and "[zenoh] listen" in lines[0]
+
+
+class ScriptedDrive(DiffDrive):
+    """A body that follows a scripted trajectory (true = odometry pose) once ``go`` is set, whatever
+    the service commands: a robot pushed around a corridor loop."""
+
+    def __init__(self, truth, speed: float, turn_rate: float):
+        super().__init__(start_pose=truth[0])
+        self.truth = truth
+        self.times = [0.0]
+        for a, b in itertools.pairwise(truth):
+            dist = math.hypot(b[0] - a[0], b[1] - a[1])
+            self.times.append(self.times[-1] + max(dist / speed, abs(wrap(b[2] - a[2])) / turn_rate))
+        self.clock = 0.0
+        self.go = False
+
+    def step(self, dt: float) -> None:
+        if not self.go:
+            return
+        self.clock = min(self.clock + dt, self.times[-1])
+        i = max(1, bisect.bisect_left(self.times, self.clock))
+        f = (self.clock - self.times[i - 1]) / (self.times[i] - self.times[i - 1])
+        self.true_pose = self.odometry_pose = interpolate(self.truth[i - 1], self.truth[i], f)
+
+
+def test_driving_a_loop_publishes_asr_exit_and_cycle_events(tmp_path):
+    from tests.raycast import cast
+    from tests.synthetic_runs import LOOP_WAYPOINTS, corridor_loop, path
+
+    body = ScriptedDrive(path(LOOP_WAYPOINTS, laps=1.4, step=0.05), speed=5.0, turn_rate=math.pi)
+    walls = corridor_loop()
+
+    def ranges(t, angles):
+        return cast(walls, body.true_pose, n=len(angles), max_range=30.0, no_return=32.767).ranges
+
+    rig = Rig(tmp_path, mapper={"laser_x": 0.0, "laser_y": 0.0},
+              make_robot=lambda fd: PioneerEmulator(fd, body=body),
+              make_laser=lambda fd: LMS2xxEmulator(fd, ranges, rate_limit=False))
+    try:
+        rig.ready()
+        rig.event("asr_created", asr=1)
+        body.go = True
+        seen = set()
+        deadline = time.monotonic() + body.times[-1] + 10
+        while not {"exit_crossed", "cycle"} <= seen and time.monotonic() < deadline:
+            try:
+                e = rig.events.get(timeout=1)
+            except queue.Empty:
+                continue
+            seen.add("cycle" if e["event"] in ("cycle_detected", "cycle_rejected") else e["event"])
+            if e["event"].startswith("cycle_"):
+                assert {"asr", "matches", "iou", "reason", "accepted"} <= set(e)
+        assert {"exit_crossed", "cycle"} <= seen, seen
+        doc, _ = rig.get("asrmap/rig/map")
+        assert len(doc["asrs"]) >= 3 and doc["links"] and doc["cycles"]
+    finally:
+        rig.close()

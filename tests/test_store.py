@@ -77,6 +77,16 @@ def test_a_corrupt_file_is_moved_aside_and_a_new_map_started(tmp_path, caplog):
     assert list(tmp_path.glob("map.sqlite.corrupt-*")) and "moved to" in caplog.text
 
 
+def test_archive_moves_the_map_aside_and_starts_empty(tmp_path):
+    with MapStore(tmp_path / "map.sqlite") as s:
+        s.sync(_doc(2))
+        aside = s.archive("not-continued")
+        assert s.load() is None
+    assert aside.name.startswith("map.sqlite.not-continued-")
+    with MapStore(aside) as old:
+        assert old.load() == _doc(2)
+
+
 _WRITER = textwrap.dedent("""
     import sys
     sys.path.insert(0, {root!r})
