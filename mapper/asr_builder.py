@@ -124,12 +124,18 @@ class AsrBuilder:
         self._last_viewpoint: Pose | None = None
         self._gate_cache: tuple | None = None
         self._pruned_size = 16
+        self._recorded = 0  # viewpoints appended by _record (see add_view)
         self._next_exit = 0
 
     def add_view(self, view: View, pose: Pose) -> bool:
         """Union the view seen from ``pose`` (ASR frame) into the ASR; True when the ASR changed."""
         p = self.p
         robot = shapely.Point(pose[:2])
+        if len(self.viewpoints) > self._recorded:
+            # a pose appended from outside (the older way to say "the robot did not walk here from
+            # the last viewpoint"): honour it as restart_path(), keep only viewpoints this ASR holds
+            del self.viewpoints[self._recorded :]
+            self.restart_path()
         vpoly = shapely.transform(view.polygon, lambda c: transform_points(pose, c))
         pieces = [vpoly]
         if self._last_viewpoint is not None:
@@ -147,18 +153,23 @@ class AsrBuilder:
             self._record(pose, robot)
             return False
         self.polygon = self._single_ring(grown, robot)
-        self.surfaces = _add_new(self.surfaces, world_surfaces, p.simplify_tolerance)
-        self.exit_segments = _add_new(
-            self.exit_segments, _transform_segments(pose, view.exits), p.simplify_tolerance
-        )
+        tol = 0.5 * p.label_tolerance
+        self.surfaces = _add_new(self.surfaces, world_surfaces, tol)
+        self.exit_segments = _add_new(self.exit_segments, _transform_segments(pose, view.exits), tol)
         self._record(pose, robot)
         self._relabel()
         return True
+
+    def restart_path(self) -> None:
+        """The robot did not walk here from the last viewpoint (it re-entered this ASR): the next
+        view is not joined to the previous one by the swept corridor."""
+        self._last_viewpoint = None
 
     def _record(self, pose: Pose, robot: shapely.Point) -> None:
         """Keep ``pose`` as a viewpoint of this ASR if the ASR holds it (and there is room)."""
         if len(self.viewpoints) < self.p.max_viewpoints and self.polygon.covers(robot):
             self.viewpoints.append(pose)
+        self._recorded = len(self.viewpoints)
 
     def open_exit(self, at: tuple[float, float]) -> Exit:
         """Open an exit where the robot left through a non-exit edge (ASR frame, m).
@@ -184,8 +195,15 @@ class AsrBuilder:
         mid = 0.5 * (seg[0, 0] + seg[0, 1])
         near = min(self.asr.exits, key=lambda e: np.hypot(*(np.asarray(e.midpoint) - mid)), default=None)
         if near is None or np.hypot(*(np.asarray(near.midpoint) - mid)) > self.p.passage_width:
-            # the boundary bends too much there for an exit edge: record the chord itself
-            near = Exit(f"{self.asr.id}/{self._next_exit}", (a.x, a.y), (b.x, b.y))
+            # the boundary bends too much there for an exit edge: record the chord itself, at least
+            # a passage wide (the robot did pass there)
+            c = seg[0, 1] - seg[0, 0]
+            half = 0.5 * max(float(np.hypot(*c)), self.p.passage_width)
+            c = c / max(float(np.hypot(*c)), 1e-12)
+            ea, eb = mid - half * c, mid + half * c
+            near = Exit(
+                f"{self.asr.id}/{self._next_exit}", (float(ea[0]), float(ea[1])), (float(eb[0]), float(eb[1]))
+            )
             self._next_exit += 1
             self.asr.exits.append(near)
         return near

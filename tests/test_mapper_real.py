@@ -5,7 +5,6 @@ from __future__ import annotations
 import re
 
 import numpy as np
-import pytest
 import shapely
 
 from mapper.mapper import Mapper
@@ -51,19 +50,13 @@ def _check_events(m: Mapper, events: list) -> None:
     created = [e for e in events if e.kind == "asr_created"]
     crossed = [e for e in events if e.kind == "exit_crossed"]
     assert len(created) == len(m.asrs)
-    assert len(crossed) == len(m.asrs) - 1  # a chain: every ASR after the first was entered through an exit
+    # every ASR after the first was created by crossing an exit (re-entries are crossings too)
+    into_new = [e for e in crossed if e.new]
+    assert sorted(e.to_asr for e in into_new) == sorted(m.asrs)[1:]
     for e in crossed:
-        assert e.to_asr == e.from_asr + 1 and e.new
+        assert e.exit.startswith(f"{e.from_asr}/")
 
 
-def test_first_800_intel_scans_build_valid_asrs(shared_data):
-    m, n, events = _run(shared_data / "intel-raw-first5505.clf.gz", 800)
-    assert n == 800
-    _check_asrs(m)
-    _check_events(m, events)
-
-
-@pytest.mark.slow
 def test_all_5505_intel_scans_build_valid_asrs(shared_data):
     m, n, events = _run(shared_data / "intel-raw-first5505.clf.gz", 10**9)
     assert n == 5505
@@ -71,4 +64,5 @@ def test_all_5505_intel_scans_build_valid_asrs(shared_data):
     _check_asrs(m)
     _check_events(m, events)
     areas = np.array([a.area for a in m.asrs.values()])
+    # all 5505 scans take ~20 s on one core: in the default suite (no fast variant needed)
     print(f"{len(m.asrs)} ASRs, area median {np.median(areas):.1f} m², max {areas.max():.1f} m²")
