@@ -98,6 +98,8 @@ class ExploreParams:
     #: s, m. Stuck: the distance to the goal has not shrunk by ``progress_min`` for ``stuck_time``.
     stuck_time: float = 12.0
     progress_min: float = 0.15
+    #: s. A goal whose way stays shut by the safety stop this long is given up.
+    blocked_time: float = 4.0
     #: s. A goal not achieved in this time is given up (bounds exploration whatever happens).
     goal_timeout: float = 120.0
     #: m, m/s, rad. Recovery: move ``recovery_distance`` at ``recovery_speed``, then turn ``recovery_turn``.
@@ -537,6 +539,8 @@ class Explorer:
         self._recovery: list[tuple[float, float, float]] = []  # (duration s, v, w) still to run
         self._recovery_until = 0.0
         self._recovery_cmd = (0.0, 0.0)
+        self._escaping = self._skipped = False
+        self._blocked_since: float | None = None
         self._last: Command | None = None
         self._unjams: list[float] = []
         self.finished = False
@@ -601,6 +605,7 @@ class Explorer:
         moving = last is not None and (last.v != 0.0 or last.w != 0.0)
         if stalled and moving and (self._recovery or t < self._recovery_until):
             self._recovery_until = t  # this recovery move is blocked too: on to the next one
+            self._skipped = True
         elif stalled and moving:
             # Something the laser cannot see (behind, beside) blocks the motion: move clear the
             # other way and carry on with the same goal; a goal that keeps jamming is given up.
@@ -609,14 +614,7 @@ class Explorer:
             if len(self._unjams) > 3:
                 self._unjams = []
                 return self._start_recovery(points, t)
-            if last.v > 0.0:
-                d = -1.0
-            elif last.v < 0.0:
-                d = 1.0
-            else:
-                d = 1.0 if self._front_free(points) else -1.0
-            p = self.p
-            self._queue([(p.recovery_distance / p.recovery_speed, d * p.recovery_speed, 0.0)], t)
+            self._queue(self._escape(last, points), t, escape=True)
         if self._recovery or t < self._recovery_until:
             return self._recover(points, t)
         return self._step(view, points, t)
@@ -732,7 +730,16 @@ class Explorer:
         w = float(np.clip(self.p.k_heading * heading, -self.p.w_max, self.p.w_max))
         v = self.p.v_max * math.cos(heading) * min(1.0, dist / 0.6 + 0.2)
         v = safety_limit(points, v, self.p)
-        return Command(v, w, status if v > 0.0 else f"{status} (safety stop)")
+        if v > 0.0:
+            self._blocked_since = None
+            return Command(v, w, status)
+        # The way ahead stays shut (a target behind a wall, a doorway that is not one): give it up.
+        if self._blocked_since is None:
+            self._blocked_since = t
+        elif t - self._blocked_since > self.p.blocked_time:
+            self._blocked_since = None
+            return self._start_recovery(points, t)
+        return Command(0.0, w, f"{status} (safety stop)")
 
     def _steer(self, want: float, dist: float, points: np.ndarray, margin: float) -> float | None:
         """The heading (rad, robot frame) nearest ``want`` along which the way is free for
@@ -763,9 +770,22 @@ class Explorer:
         front = free_distance(points, np.array([0.0]), self.p, self.p.avoid_margin)[0]
         return bool(front > self.p.recovery_distance + self.p.stop_distance)
 
-    def _queue(self, moves: list[tuple[float, float, float]], t: float) -> None:
+    def _escape(self, last: Command, points: np.ndarray) -> list[tuple[float, float, float]]:
+        """Moves to try, in turn, to get clear of a contact: away from the blocked motion first,
+        then turning either way, then the other translation (the first that does not stall wins)."""
+        p = self.p
+        d = -1.0 if last.v > 0.0 else 1.0 if last.v < 0.0 else (1.0 if self._front_free(points) else -1.0)
+        r = -1.0 if last.w > 0.0 else 1.0
+        move = (p.recovery_distance / p.recovery_speed, 0.0, 0.0)
+        turn = (0.5 / (0.5 * p.w_max), 0.0, 0.0)
+        return [(move[0], d * p.recovery_speed, 0.0), (turn[0], 0.0, r * 0.5 * p.w_max),
+                (turn[0], 0.0, -r * 0.5 * p.w_max), (move[0], -d * p.recovery_speed, 0.0)]
+
+    def _queue(self, moves: list[tuple[float, float, float]], t: float, escape: bool = False) -> None:
         self._recovery = list(moves)
         self._recovery_until = t
+        self._escaping = escape
+        self._skipped = False
 
     def _start_recovery(self, points: np.ndarray, t: float) -> Command:
         self.counts["stuck"] += 1
@@ -777,12 +797,17 @@ class Explorer:
             (self.p.recovery_distance / self.p.recovery_speed, d * self.p.recovery_speed, 0.0),
             (self.p.recovery_turn / (0.5 * self.p.w_max), 0.0, turn * 0.5 * self.p.w_max),
         ], t)
+        self._blocked_since = None
         self._give_up("stuck")
         return self._recover(points, t)
 
     def _recover(self, points: np.ndarray, t: float) -> Command:
         if t >= self._recovery_until:
+            if self._escaping and not self._skipped and self._recovery_cmd != (0.0, 0.0):
+                self._recovery = []  # that escape move ran its course: clear
+            self._skipped = False
             if not self._recovery:
+                self._recovery_cmd = (0.0, 0.0)
                 return Command(0.0, 0.0, "recovered")
             duration, v, w = self._recovery.pop(0)
             self._recovery_until = t + duration
