@@ -349,6 +349,8 @@ class MapperWorker:
         if now >= self._next_pose:
             self._next_pose = now + self.pose_period
             self.last_pose = pose_report(self.mapper, scan.t, odo)
+            if self.last_pose["asr"] is not None:
+                self.store.save_pose(self.last_pose["asr"], self.last_pose["pose"])
             if bus is not None:
                 bus.publish_pose(self.last_pose)
         return events
@@ -374,14 +376,24 @@ class MapperWorker:
 
 
 def make_mapper(cfg: Config, doc: dict[str, Any] | None):
-    """A new mapper, or the stored map continued (``Mapper.from_document``)."""
+    """A new mapper, or the stored map continued (``Mapper.from_document``).
+
+    ``doc["resume"]`` (put there by :class:`Service` from the store) is where the robot was: ASR id
+    and pose in its frame. The mapper resumes in the document's last ASR, so the pose is used when
+    that is the ASR the robot was in (a restart after a crash: the robot has not moved).
+    """
     from mapper.mapper import Mapper
 
     params = cfg.mapper_params()
+    resume = (doc or {}).pop("resume", None)
     if doc and doc.get("asrs"):
         if hasattr(Mapper, "from_document"):
-            log.info("continuing the stored map: %d ASRs", len(doc["asrs"]))
-            return Mapper.from_document(doc, params)
+            pose = (0.0, 0.0, 0.0)
+            if resume and resume[0] == doc["asrs"][-1]["id"]:
+                pose = tuple(resume[1])
+            log.info("continuing the stored map: %d ASRs, robot at %s in ASR %s", len(doc["asrs"]),
+                     pose, doc["asrs"][-1]["id"])
+            return Mapper.from_document(doc, params, pose)
         log.warning("this mapper cannot continue a stored map (no Mapper.from_document): starting a new one")
     return Mapper(params)
 
@@ -534,6 +546,8 @@ class Service:
             raise
         try:
             stored = store.load()
+            if stored:
+                stored["resume"] = store.load_pose()
             mapper = self._new_mapper(cfg, stored)
             if stored and stored.get("asrs") and not document_of(mapper).get("asrs"):
                 store.archive("not-continued")

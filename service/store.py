@@ -32,6 +32,7 @@ CREATE TABLE IF NOT EXISTS links (src INTEGER NOT NULL, exit TEXT NOT NULL, doc 
                                   PRIMARY KEY (src, exit));
 CREATE TABLE IF NOT EXISTS cycles (seq INTEGER PRIMARY KEY, doc TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS extra (key TEXT PRIMARY KEY, doc TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS state (key TEXT PRIMARY KEY, doc TEXT NOT NULL);
 """
 
 
@@ -144,6 +145,20 @@ class MapStore:
             raise
         self._asrs, self._links, self._cycles, self._extra = asrs, links, cycles, extra
         return Synced(n, [i for i, _ in up_asrs])
+
+    def save_pose(self, asr: int, pose: tuple[float, float, float]) -> None:
+        """Remember where the robot is: ``pose`` (m, m, rad) in the frame of ASR ``asr``. Kept apart
+        from the map (it changes every scan) so that a restart can resume there."""
+        self._db.execute("INSERT OR REPLACE INTO state (key, doc) VALUES ('pose', ?)",
+                         (_dumps({"asr": int(asr), "pose": [float(v) for v in pose]}),))
+
+    def load_pose(self) -> tuple[int, tuple[float, float, float]] | None:
+        """The last :meth:`save_pose`, or None."""
+        row = self._db.execute("SELECT doc FROM state WHERE key = 'pose'").fetchone()
+        if row is None:
+            return None
+        d = json.loads(row[0])
+        return int(d["asr"]), tuple(d["pose"])
 
     def archive(self, why: str) -> Path:
         """Move the stored map aside (``<name>.<why>-<unix time>``) and start an empty one; returns

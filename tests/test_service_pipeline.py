@@ -322,3 +322,17 @@ def test_a_stored_map_the_mapper_does_not_continue_is_archived_not_overwritten(t
     (aside,) = tmp_path.glob("map.sqlite.not-continued-*")
     with MapStore(aside) as s:
         assert len(s.load()["asrs"]) >= 2
+
+
+def test_a_restart_resumes_at_the_stored_pose_when_it_is_in_the_last_asr(monkeypatch):
+    from mapper.mapper import Mapper
+    from service.pipeline import make_mapper
+
+    calls = []
+    monkeypatch.setattr(Mapper, "from_document",
+                        classmethod(lambda cls, doc, params, pose: calls.append(pose)))
+    doc = {"asrs": [{"id": 1}, {"id": 2}]}
+    make_mapper(Config(), {**doc, "resume": (2, (0.5, 0.25, 1.0))})
+    make_mapper(Config(), {**doc, "resume": (1, (0.5, 0.25, 1.0))})  # not the ASR it resumes in
+    make_mapper(Config(), {**doc, "resume": None})
+    assert calls == [(0.5, 0.25, 1.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)]

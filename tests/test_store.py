@@ -87,6 +87,16 @@ def test_archive_moves_the_map_aside_and_starts_empty(tmp_path):
         assert old.load() == _doc(2)
 
 
+def test_the_robots_pose_is_kept_apart_from_the_map(tmp_path):
+    with MapStore(tmp_path / "map.sqlite") as s:
+        assert s.load_pose() is None
+        s.sync(_doc(2))
+        s.save_pose(2, (0.5, -0.25, 1.0))
+        s.save_pose(2, (0.75, -0.25, 1.0))
+    with MapStore(tmp_path / "map.sqlite") as s:
+        assert s.load_pose() == (2, (0.75, -0.25, 1.0)) and s.load() == _doc(2)
+
+
 _WRITER = textwrap.dedent("""
     import sys
     sys.path.insert(0, {root!r})

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import gc
 import signal
+import sys
 import threading
 
 from service import config
@@ -11,6 +13,8 @@ from service.pipeline import Service
 NAME = "run"
 HELP = "the live mapping service: Pioneer and laser on serial ports, map on Zenoh and in the store"
 EXAMPLE = "asrmap run --config /etc/asrmap/asrmap.toml"
+
+SWITCH_INTERVAL = 0.001  # s
 
 
 def add_arguments(p) -> None:
@@ -29,4 +33,10 @@ def run(args) -> int:
 
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, on_signal)
+    # The serial reader threads wait for the GIL while the mapper computes; at the default 5 ms
+    # switch interval each of their few acquisitions per telegram can cost up to 5 ms of latency.
+    sys.setswitchinterval(SWITCH_INTERVAL)
+    # Everything imported so far lives as long as the process: keep it out of the collector's
+    # full passes, which otherwise stall every thread for milliseconds.
+    gc.freeze()
     return Service(cfg).run(stop)
