@@ -119,7 +119,7 @@ class Localiser:
         """Start over in a new ASR frame at ``pose`` (its creating scan: the frame's origin)."""
         self.kf.x = np.array(pose, dtype=float)
         self.kf.P = np.diag([1e-6, 1e-6, 1e-8])
-        self._refs: list[np.ndarray] = []
+        self._refs: list[tuple[np.ndarray, np.ndarray]] = []  # (points, directions), ASR frame
         self._ref_ready = False
 
     @property
@@ -145,13 +145,13 @@ class Localiser:
         pts = transform_points(pose, xy)
         if self._refs and len(self._refs) > self.p.reference_scans:
             del self._refs[1]  # keep the first (anchors the frame) and the latest ones
-        self._refs.append(pts)
+        self._refs.append((pts, _directions(pts, self.p.direction_max_gap)))
         self._build_reference()
 
     def _build_reference(self) -> None:
         p = self.p
-        dirs = np.concatenate([_directions(r, p.direction_max_gap) for r in self._refs])
-        pts = np.concatenate(self._refs)
+        dirs = np.concatenate([d for _, d in self._refs])
+        pts = np.concatenate([r for r, _ in self._refs])
         if len(dirs) < 10 or len(pts) < 10:
             self._ref_ready = False
             return
