@@ -35,6 +35,7 @@ from mapper.params import MapperParams
 #: Labels of a gap's cover: an exit, a closed gap (labelled ``surface`` on the boundary), or open.
 EXIT, CLOSED, OPEN = "exit", "surface", "unknown"
 _CANDIDATES = 6  # shortest candidates per gap checked for visibility
+_WINDOW = 32  # surfaces across a gap considered for its cover (a doorway seen past clutter is < 32)
 _ALT_SLACK = 0.05  # m: a jamb's side is a few beams, its fit is off by a few cm
 _JAMB_MAX = 0.5  # m: the deepest wall whose jamb side counts as part of a doorway
 
@@ -86,34 +87,36 @@ def _shortest(
     fraction along that surface.
     """
     m = len(seg)
-    # every candidate (gap g, surface k) at once
-    q, tq = closest_on_segments(pp[:, None, :], seg[None, :, :, :])
+    # the surfaces across each gap, nearest in sweep order first: a window of them, since a cover
+    # lands within a few surfaces of its gap and the visibility test is quadratic in the window
+    w = min(_WINDOW, m)
+    off = np.arange(w)
+    kw = np.where(right[:, None], gap[:, None] + 1 + off, gap[:, None] - off)  # (G, W)
+    valid = (kw >= 0) & (kw < m)
+    kw = np.clip(kw, 0, m - 1)
+    segw = seg[kw]  # (G, W, 2, 2)
+    q, tq = closest_on_segments(pp[:, None, :], segw)
     length = np.hypot(q[..., 0] - pp[:, None, 0], q[..., 1] - pp[:, None, 1])
-    k = np.arange(m)[None, :]
-    across = np.where(right[:, None], k > gap[:, None], k <= gap[:, None])
-    length = np.where(across, length, np.inf)
+    length = np.where(valid, length, np.inf)
     # only the few shortest candidates of each gap are checked for visibility: a longer one is
     # taken only when all of these are hidden, and then the gap is wide open anyway
-    nc = min(_CANDIDATES, m)
-    cand = np.argpartition(length, nc - 1, axis=1)[:, :nc]  # (G, C)
+    nc = min(_CANDIDATES, w)
+    cand = np.argpartition(length, nc - 1, axis=1)[:, :nc]  # (G, C) window positions
     g_ = np.arange(len(gap))[:, None]
     clen, cq, ctq = length[g_, cand], q[g_, cand], tq[g_, cand]
-    # surfaces strictly between P and Q must lie beyond the line PQ (seen from the laser)
-    lo_k = np.where(right[:, None], gap[:, None] + 1, cand + 1)  # first surface strictly between
-    hi_k = np.where(right[:, None], cand - 1, gap[:, None])  # last one
-    idx = np.arange(m)
-    inside = (idx[None, None, :] >= lo_k[..., None]) & (idx[None, None, :] <= hi_k[..., None])  # (G,C,M)
+    # the surfaces strictly between P and Q (window positions before Q's) must lie beyond the line
+    # PQ as seen from the laser
+    inside = (off[None, None, :] < cand[..., None]) & valid[:, None, :]  # (G, C, W)
     d = cq - pp[:, None, :]  # (G, C, 2) line direction
     dn = np.maximum(np.hypot(d[..., 0], d[..., 1]), 1e-9)
-    side_o = _cross(d, o - pp[:, None, :])  # which side of the line the laser is on
-    sgn = np.where(side_o >= 0, 1.0, -1.0)
-    ends = seg.reshape(1, 1, 2 * m, 2) - pp[:, None, None, :]  # (G, 1, 2M, 2)
-    side_e = _cross(d[:, :, None, :], ends) / dn[..., None]  # (G, C, 2M)
-    in_front = (side_e * sgn[..., None] > p.visibility_tolerance).reshape(*side_e.shape[:2], m, 2).any(-1)
+    sgn = np.where(_cross(d, o - pp[:, None, :]) >= 0, 1.0, -1.0)  # the laser's side of the line
+    ends = segw.reshape(len(gap), 1, 2 * w, 2) - pp[:, None, None, :]  # (G, 1, 2W, 2)
+    side_e = _cross(d[:, :, None, :], ends) / dn[..., None]  # (G, C, 2W)
+    in_front = (side_e * sgn[..., None] > p.visibility_tolerance).reshape(*side_e.shape[:2], w, 2).any(-1)
     clen = np.where((inside & in_front).any(-1), np.inf, clen)
     pick = np.argmin(clen, axis=1)
     g1 = np.arange(len(gap))
-    best = cand[g1, pick]
+    best = kw[g1, cand[g1, pick]]
     best_len = clen[g1, pick]
     qb = cq[g1, pick]
     tqb = ctq[g1, pick]
