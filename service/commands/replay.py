@@ -36,12 +36,18 @@ def add_arguments(p) -> None:
         help="the paper's plain cycle check only (no hindsight/verification/realign)",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--through-serial", action="store_true",
+                   help="play the log through the emulated Pioneer and LMS200 on ptys and the whole service")
+    p.add_argument("--speed", default="1", metavar="N|max",
+                   help="with --through-serial: N times faster than recorded, or 'max' (the line's limit)")
+    p.add_argument("--ignore-baud", action="store_true",
+                   help="with --through-serial: send scans when due even where the baud would not allow it")
 
 
 class Bar:
     """A plain-text progress bar on stderr, redrawn at most five times a second."""
 
-    def __init__(self, stream=sys.stderr):
+    def __init__(self, stream=None):
         self.stream, self.last = stream, 0.0
 
     def __call__(self, done: int, total: int, spent: float) -> None:
@@ -52,10 +58,11 @@ class Bar:
         frac = done / total if total else 1.0
         rate = done / spent if spent > 0 else 0.0
         bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
-        self.stream.write(f"\r[{bar}] {100 * frac:5.1f}% {done}/{total} scans, {rate:,.0f} scans/s ")
+        out = self.stream or sys.stderr
+        out.write(f"\r[{bar}] {100 * frac:5.1f}% {done}/{total} scans, {rate:,.0f} scans/s ")
         if done >= total:
-            self.stream.write("\n")
-        self.stream.flush()
+            out.write("\n")
+        out.flush()
 
 
 def _fmt(x: float, pct: bool = False) -> str:
@@ -95,15 +102,23 @@ def run(args) -> int:
     params = params_for_log(args.log)
     if args.paper and hasattr(params, "cycles"):
         params = dataclasses.replace(params, cycles=CycleParams.paper())
-    res = replay(
-        args.log,
-        params=params,
-        truth=args.truth,
-        logged_poses=args.logged_poses,
-        progress=None if args.no_progress else Bar(),
-    )
+    if args.through_serial:
+        from service.serial_replay import serial_replay
+
+        speed = args.speed if args.speed == "max" else float(args.speed)
+        res = serial_replay(args.log, params=params, truth=args.truth, logged_poses=args.logged_poses,
+                            speed=speed, rate_limit=not args.ignore_baud,
+                            progress=None if args.no_progress else Bar())
+    else:
+        res = replay(args.log, params=params, truth=args.truth, logged_poses=args.logged_poses,
+                     progress=None if args.no_progress else Bar())
     for line in summary(res):
         print(line)
+    if args.through_serial:
+        c = res.counters
+        print(f"serial: {res.speed:.1f}x, {res.wall_seconds:.1f} s, scans sent {c['scans_sent']}, skipped by "
+              f"the line {c['scans_skipped']}, dropped by the pipeline {c['scans_dropped']}, mapped "
+              f"{c['scans_mapped']}; motors {'stopped' if res.motors_stopped else 'NOT STOPPED'}")
     if args.json:
         Path(args.json).write_text(json.dumps(res.document), encoding="utf-8")
     if args.svg:
