@@ -35,6 +35,7 @@ import math
 import numpy as np
 import shapely
 
+from mapper.exits import closest_on_segments
 from mapper.params import MapperParams
 from mapper.se2 import Pose, transform_points
 from mapper.types import ASR, Exit
@@ -47,12 +48,8 @@ _SAMPLES = np.linspace(0.1, 0.9, 5)  # fractions along an exit tested for being 
 
 def _point_segment(p: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Distances (P, S) from points (P, 2) to segments (S, 2, 2), and the fractions t along them."""
-    a = seg[:, 0]
-    ab = seg[:, 1] - a
-    ap = p[:, None, :] - a[None]
-    den = np.maximum((ab * ab).sum(-1), 1e-18)
-    t = np.clip((ap * ab[None]).sum(-1) / den, 0.0, 1.0)
-    d = ap - t[..., None] * ab[None]
+    q, t = closest_on_segments(p[:, None, :], seg[None])
+    d = q - p[:, None, :]
     return np.hypot(d[..., 0], d[..., 1]), t
 
 
