@@ -29,6 +29,7 @@ from __future__ import annotations
 import heapq
 import logging
 import math
+from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -37,7 +38,7 @@ import numpy as np
 import shapely
 from shapely.ops import nearest_points
 
-from mapper.se2 import Pose, inverse, transform_points, wrap
+from mapper.se2 import Pose, compose, inverse, transform_points, wrap
 from mapper.types import ASR, Exit
 
 log = logging.getLogger(__name__)
@@ -89,8 +90,10 @@ class ExploreParams:
     #: doors leave 0.24 m a side).
     avoid_margin: float = 0.05
     #: m. A scan point closer than this to the turning centre blocks turning on the spot: the
-    #: P2DX's rear corners sweep 0.368 m, and the laser cannot see what is behind.
+    #: P2DX's rear corners sweep 0.368 m. Points seen in the last ``memory_time`` s count too,
+    #: carried along with the robot's pose, since the laser cannot see what is beside or behind.
     turn_radius: float = 0.41
+    memory_time: float = 5.0
     #: m. Safety stop: no forward motion while a surface in the robot's path is closer to the laser.
     stop_distance: float = 0.3
     #: m. Forward speed falls linearly to zero over this distance before the stop distance.
@@ -541,6 +544,8 @@ class Explorer:
         self._recovery_cmd = (0.0, 0.0)
         self._escaping = self._skipped = False
         self._blocked_since: float | None = None
+        self._memory: deque[tuple[float, Pose, np.ndarray]] = deque()
+        self._near = np.zeros((0, 2))
         self._last: Command | None = None
         self._unjams: list[float] = []
         self.finished = False
@@ -597,8 +602,35 @@ class Explorer:
     def step(self, view: MapView, points: np.ndarray, t: float, stalled: bool = False) -> Command:
         """The command for now. ``points``: latest scan returns (N, 2) in the robot frame (m);
         ``stalled``: the robot reports stalled wheels (P2OS stall bits)."""
+        self._near = self._remember(view, points, t)
         self._last = self._command(view, points, t, stalled)
         return self._last
+
+    def _remember(self, view: MapView, points: np.ndarray, t: float) -> np.ndarray:
+        """Scan points near the robot from the last ``memory_time`` s, in the robot frame now (m).
+
+        The laser sees only ahead; what the robot passed is now beside or behind it, where its
+        corners sweep when it turns. Points are kept in the global frame (the current ASR's origin
+        composed with the pose); a jump of the global pose (re-entry into a drifted ASR) forgets them.
+        """
+        asr = view.asrs.get(view.current) if view.current is not None else None
+        if asr is None:
+            self._memory.clear()
+            return points
+        glob = compose(asr.origin, view.pose)
+        if self._memory:
+            prev = self._memory[-1][1]
+            if math.hypot(glob[0] - prev[0], glob[1] - prev[1]) > 0.5:
+                self._memory.clear()
+        reach = 2.0 * self.p.turn_radius
+        near = points[np.hypot(points[:, 0], points[:, 1]) < reach] if len(points) else points
+        self._memory.append((t, glob, transform_points(glob, near) if len(near) else np.zeros((0, 2))))
+        while self._memory and t - self._memory[0][0] > self.p.memory_time:
+            self._memory.popleft()
+        old = [m[2] for m in list(self._memory)[:-1] if len(m[2])]
+        if not old:
+            return points
+        return np.vstack([points, transform_points(inverse(glob), np.vstack(old))])
 
     def _command(self, view: MapView, points: np.ndarray, t: float, stalled: bool) -> Command:
         last = self._last
@@ -706,8 +738,13 @@ class Explorer:
             self._progress(abs(bearing), t)
             if self._stuck(t):
                 return self._start_recovery(points, t)
-        if len(points) and float(np.hypot(points[:, 0], points[:, 1]).min()) < self.p.turn_radius:
-            return Command(-0.5 * self.p.recovery_speed, 0.0, f"{status} (backing off to turn)")
+        pts = self._near if len(self._near) >= len(points) else points
+        near = pts[np.hypot(pts[:, 0], pts[:, 1]) < self.p.turn_radius] if len(pts) else pts
+        creep = 0.5 * self.p.recovery_speed
+        if len(near) and (near[:, 0] > 0.0).all():
+            return Command(-creep, 0.0, f"{status} (backing off to turn)")
+        if len(near) and (near[:, 0] < 0.0).all() and self._front_free(points):
+            return Command(creep, 0.0, f"{status} (moving off to turn)")
         w = float(np.clip(self.p.k_heading * bearing, -self.p.w_max, self.p.w_max))
         if abs(w) < 0.15:
             w = math.copysign(0.15, bearing)  # below this P2OS barely turns (1 deg/s resolution)
@@ -764,6 +801,10 @@ class Explorer:
     def _stuck(self, t: float) -> bool:
         return t - self._best_t > self.p.stuck_time
 
+    def _turn_blocked(self) -> bool:
+        near = self._near
+        return bool(len(near) and float(np.hypot(near[:, 0], near[:, 1]).min()) < self.p.turn_radius)
+
     def _front_free(self, points: np.ndarray) -> bool:
         if not len(points):
             return True
@@ -810,6 +851,11 @@ class Explorer:
                 self._recovery_cmd = (0.0, 0.0)
                 return Command(0.0, 0.0, "recovered")
             duration, v, w = self._recovery.pop(0)
+            while v == 0.0 and self._turn_blocked() and self._recovery:
+                duration, v, w = self._recovery.pop(0)  # a turn that would sweep into a surface seen
+            if v == 0.0 and self._turn_blocked():
+                self._recovery_cmd = (0.0, 0.0)
+                return Command(0.0, 0.0, "recovered")
             self._recovery_until = t + duration
             self._recovery_cmd = (v, w)
         v, w = self._recovery_cmd
