@@ -254,6 +254,77 @@ class Link:
                 "driver": getattr(dev, "link_state", None), "counters": dict(counters or {})}
 
 
+# --- exploration (cmd/explore) ---------------------------------------------------------------------------
+
+
+class Exploration:
+    """The explorer of :mod:`service.explore` driving the robot from the mapper thread.
+
+    :meth:`step` runs after each mapped scan: it commands at most every ``period`` seconds (P2OS at
+    9600 baud carries ~50 velocity commands a second, and the robot's control loop runs at 10 Hz),
+    and only from a fresh scan (``max_age`` seconds): a mapper that fell behind must not steer by
+    what the laser saw long ago, so the robot is stopped instead. :meth:`stop` holds the same lock
+    as a step, so no velocity command follows a stop.
+    """
+
+    def __init__(self, send: Callable[[float, float], Any], stalled: Callable[[], bool],
+                 period: float = 0.1, max_age: float = 0.3):
+        self._send = send
+        self._stalled = stalled
+        self.period = period
+        self.max_age = max_age
+        self.active = False
+        self.status = "idle"
+        self.explorer: Any = None
+        self._next = 0.0
+        self._lock = threading.Lock()
+
+    def start(self) -> None:
+        from service.explore import Explorer
+
+        with self._lock:
+            if not self.active:
+                self.explorer = Explorer()
+                self.active, self.status = True, "starting"
+                log.info("exploration started")
+
+    def stop(self, why: str) -> bool:
+        """End exploring (the caller stops the robot); True if it was active."""
+        with self._lock:
+            was, self.active = self.active, False
+            if was:
+                self.status = f"stopped: {why}"
+                log.info("exploration stopped: %s", why)
+            return was
+
+    def step(self, mapper: Any, document: dict[str, Any], scan: Any) -> None:
+        from service.explore import MapView, links_of, scan_points
+
+        with self._lock:
+            now = time.monotonic()
+            if not self.active or now < self._next:
+                return
+            self._next = now + self.period
+            if now - scan.t > self.max_age:
+                self.status = f"paused: the newest mapped scan is {now - scan.t:.2f} s old"
+                self._send(0.0, 0.0)
+                return
+            if mapper.current is None:
+                self.status = "waiting for the first ASR"
+                return
+            ex = self.explorer
+            pts = scan_points(np.asarray(scan.ranges, float), np.asarray(scan.angles, float),
+                              float(getattr(scan, "max_range", 8.0)), ex.p)
+            view = MapView(mapper.current, mapper.pose, mapper.asrs, links_of(document.get("links", ())))
+            cmd = ex.step(view, pts, scan.t, self._stalled())
+            self.status = cmd.status
+            self._send(cmd.v, cmd.w)
+            if cmd.done:
+                self.active, self.status = False, "done: every exit explored"
+                self._send(0.0, 0.0)
+                log.info("exploration done")
+
+
 # --- the mapper thread ------------------------------------------------------------------------------------
 
 
@@ -298,6 +369,7 @@ class MapperWorker:
         self.counters = {"scans_mapped": 0, "scans_without_odometry": 0, "events": 0, "mapper_errors": 0}
         self.document: dict[str, Any] = self._stamp(document_of(mapper))
         self.last_pose: dict[str, Any] | None = None
+        self.exploration: Exploration | None = None
         self._next_pose = 0.0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="mapper", daemon=True)
@@ -353,6 +425,8 @@ class MapperWorker:
                 self.store.save_pose(self.last_pose["asr"], self.last_pose["pose"])
             if bus is not None:
                 bus.publish_pose(self.last_pose)
+        if self.exploration is not None and self.exploration.active:
+            self.exploration.step(self.mapper, self.document, scan)
         return events
 
     def commit_and_publish(self, events: list[Any]) -> None:
@@ -449,6 +523,7 @@ class Service:
                             wd.odometry_timeout, wd.reconnect_interval, self._on_link_change)
         self.laser = Link("laser", lambda: self._open_laser(cfg), self._attach_laser,
                           wd.scan_timeout, wd.reconnect_interval, self._on_link_change)
+        self.exploration = Exploration(self._drive, self._stalled)
 
     # --- device callbacks (driver threads): record and return --------------------------------------
 
@@ -475,8 +550,10 @@ class Service:
         body = {"event": what, "t": time.monotonic(), "device": device}
         if reason:
             body["reason"] = reason
-        if device == "laser" and what == "fault":
-            self.stop_robot("the laser is blind")
+        if what == "fault":
+            self.exploration.stop(f"{device} fault")
+            if device == "laser":
+                self.stop_robot("the laser is blind")
         if self.bus is not None:
             self.bus.publish_event(body)
 
@@ -496,12 +573,30 @@ class Service:
             log.error("could not stop the robot (%s): %s", why, exc)
             return False
 
+    def _drive(self, v: float, w: float) -> None:
+        dev = self.pioneer.device
+        if dev is None:
+            raise CommandRefused("the Pioneer is not connected")
+        dev.set_velocity(v, w)
+
+    def _stalled(self) -> bool:
+        dev = self.pioneer.device
+        sip = getattr(getattr(dev, "odometry", None), "sip", None)
+        return bool(getattr(sip, "left_stall", False) or getattr(sip, "right_stall", False))
+
     def _command(self, name: str, params: dict[str, str]) -> dict[str, Any]:
         if name == "stop":
+            self.exploration.stop("cmd/stop")
             if not self.stop_robot("cmd/stop"):
                 raise CommandRefused("the Pioneer is not connected; P2OS stops its motors on its own")
             return {"stopped": True}
-        raise CommandRefused(f"{name}: no exploration behaviour in asrmap run; use asrmap simulate --explore")
+        if name == "explore":
+            down = [link.name for link in (self.pioneer, self.laser) if link.state != "ok"]
+            if down:
+                raise CommandRefused(f"cannot explore: {' and '.join(down)} not connected")
+            self.exploration.start()
+            return {"exploring": True}
+        raise CommandRefused(f"unknown command {name}")
 
     # --- status ---------------------------------------------------------------------------------------
 
@@ -522,6 +617,7 @@ class Service:
             "mapper": dict(w.counters) if w else {},
             "mapper_busy": round(time.monotonic() - busy, 3) if busy else 0.0,
             "asrs": len(w.document.get("asrs", ())) if w else 0,
+            "explore": {"active": self.exploration.active, "status": self.exploration.status},
             "bus": dict(self.bus.counters) if self.bus else {},
         }
 
@@ -558,6 +654,7 @@ class Service:
             self.bus.close()
             raise
         self.worker.bus = self.bus
+        self.worker.exploration = self.exploration
         try:
             self.pioneer.start()
             self.laser.start()
@@ -600,6 +697,7 @@ class Service:
         """Motors first, then the laser's output, then Zenoh; everything bounded (< 2 s)."""
         log.info("stopping")
         self.notifier.stopping("stopping")
+        self.exploration.stop("shutting down")
         self.stop_robot("shutting down")
         self.laser.stop(None)
         self.pioneer.stop(None)

@@ -336,3 +336,46 @@ def test_a_restart_resumes_at_the_stored_pose_when_it_is_in_the_last_asr(monkeyp
     make_mapper(Config(), {**doc, "resume": (1, (0.5, 0.25, 1.0))})  # not the ASR it resumes in
     make_mapper(Config(), {**doc, "resume": None})
     assert calls == [(0.5, 0.25, 1.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)]
+
+
+class _Explorer:
+    p = SimpleNamespace(laser_x=0.0, laser_y=0.0)
+
+    def __init__(self, done_after=99):
+        self.steps, self.done_after = 0, done_after
+
+    def step(self, view, pts, t, stalled):
+        from service.explore import Command
+
+        self.steps += 1
+        return Command(0.3, 0.1, "driving", done=self.steps >= self.done_after)
+
+
+def _exploring(explorer) -> tuple:
+    from service.pipeline import Exploration
+
+    sent = []
+    ex = Exploration(lambda v, w: sent.append((v, w)), lambda: False, period=0.0)
+    ex.start()
+    ex.explorer = explorer
+    return ex, sent
+
+
+def test_exploration_drives_from_fresh_scans_only():
+    ex, sent = _exploring(_Explorer())
+    mapper = SimpleNamespace(current=1, pose=(0.0, 0.0, 0.0), asrs={})
+    ex.step(mapper, {"links": []}, _scan(time.monotonic()))
+    ex.step(mapper, {"links": []}, _scan(time.monotonic() - 1.0))
+    assert sent == [(0.3, 0.1), (0.0, 0.0)] and ex.status.startswith("paused: the newest mapped scan")
+
+
+def test_no_velocity_follows_a_stop_and_done_stops_the_robot():
+    ex, sent = _exploring(_Explorer(done_after=2))
+    mapper = SimpleNamespace(current=1, pose=(0.0, 0.0, 0.0), asrs={})
+    ex.step(mapper, {}, _scan(time.monotonic()))
+    ex.step(mapper, {}, _scan(time.monotonic()))
+    assert sent == [(0.3, 0.1), (0.3, 0.1), (0.0, 0.0)] and not ex.active and ex.status.startswith("done")
+    ex.start()
+    assert ex.stop("cmd/stop") and not ex.stop("again")
+    ex.step(mapper, {}, _scan(time.monotonic()))
+    assert len(sent) == 3 and ex.status == "stopped: cmd/stop"

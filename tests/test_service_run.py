@@ -28,16 +28,21 @@ from service.bus import client_config
 class Rig:
     """Emulated robot + ``asrmap run`` + a Zenoh session recording events and liveliness."""
 
-    def __init__(self, tmp: Path, plug_laser: bool = True, make_robot=None, make_laser=None, **extra: dict):
+    def __init__(self, tmp: Path, plug_laser: bool = True, make_robot=None, make_laser=None,
+                 ports: tuple[str, str] | None = None, **extra: dict):
+        """``ports``: (pioneer, laser) devices that exist elsewhere; else emulators on ptys here."""
         self.tmp = tmp
-        self.robot = PluggedDevice(tmp / "pioneer", make_robot or (lambda fd: PioneerEmulator(fd)))
-        self.laser = PluggedDevice(tmp / "sick", make_laser or (
-            lambda fd: LMS2xxEmulator(fd, room(), rate_limit=False)))
-        if not plug_laser:
-            self.laser.unplug()
+        self.robot = self.laser = None
+        if ports is None:
+            self.robot = PluggedDevice(tmp / "pioneer", make_robot or (lambda fd: PioneerEmulator(fd)))
+            self.laser = PluggedDevice(tmp / "sick", make_laser or (
+                lambda fd: LMS2xxEmulator(fd, room(), rate_limit=False)))
+            if not plug_laser:
+                self.laser.unplug()
+            ports = (str(tmp / "pioneer"), str(tmp / "sick"))
         self.ep = f"tcp/127.0.0.1:{free_port()}"
-        sections = {"robot": {"name": "rig"}, "pioneer": {"port": str(tmp / "pioneer")},
-                    "laser": {"port": str(tmp / "sick")}, "zenoh": {"listen": [self.ep]},
+        sections = {"robot": {"name": "rig"}, "pioneer": {"port": ports[0]},
+                    "laser": {"port": ports[1]}, "zenoh": {"listen": [self.ep]},
                     "store": {"state_dir": str(tmp)},
                     "watchdog": {"reconnect_interval": 0.2, "scan_timeout": 0.5}}
         for k, v in extra.items():
@@ -89,8 +94,9 @@ class Rig:
         for d in self._decls:
             d.undeclare()
         self.session.close()
-        self.laser.close()
-        self.robot.close()
+        for dev in (self.laser, self.robot):
+            if dev is not None:
+                dev.close()
 
 
 @pytest.fixture
@@ -270,3 +276,38 @@ def test_driving_a_loop_publishes_asr_exit_and_cycle_events(tmp_path):
         assert len(doc["asrs"]) >= 3 and doc["links"] and doc["cycles"]
     finally:
         rig.close()
+
+
+def test_cmd_explore_drives_the_robot_and_cmd_stop_stops_it(tmp_path):
+    """In the simulated lab (both emulators ray cast and move in one world), with both commands
+    allowed: explore makes the robot move on its own; stop ends exploring and the wheels stop."""
+    from service.sim.simulator import WorldDevices
+    from service.sim.world import load_world
+
+    with WorldDevices(load_world("lab")) as world:
+        rig = Rig(tmp_path, ports=(world.pioneer_path, world.laser_path),
+                  zenoh={"allow_commands": ["stop", "explore"]})
+        try:
+            rig.ready()
+            start = world.robot.drive.true_pose
+            ok, err = rig.get("asrmap/rig/cmd/explore")
+            assert err is None and ok["exploring"] is True
+            deadline = time.monotonic() + 15
+            while time.monotonic() < deadline:
+                x, y, th = world.robot.drive.true_pose
+                if math.hypot(x - start[0], y - start[1]) > 0.3 or abs(wrap(th - start[2])) > 0.5:
+                    break
+                time.sleep(0.2)
+            else:
+                raise AssertionError(f"the robot did not move\n{rig.service.log()[-2000:]}")
+            ok, err = rig.get("asrmap/rig/cmd/stop")
+            assert err is None and ok["stopped"] is True
+            time.sleep(1.5)  # P2OS decelerates
+            assert world.robot.drive.left_speed == 0.0 and world.robot.drive.right_speed == 0.0
+            status = rig.status.get(timeout=3)
+            while status["explore"]["status"] in ("idle", "starting") or status["explore"]["active"]:
+                status = rig.status.get(timeout=3)
+            assert status["explore"] == {"active": False, "status": "stopped: cmd/stop"}
+        finally:
+            rig.close()
+
