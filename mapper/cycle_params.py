@@ -36,6 +36,17 @@ class CycleParams:
     excludes the current ASR and the one it was entered from (1). Beyond the paper, 2 also skips
     the ASR two transitions back, which overlaps the current one in a corridor without any cycle."""
 
+    crosscheck_margin: float = 0.3
+    """m. Beyond the paper: each centre must lie this far inside the other polygon, not merely inside.
+    A centre near the other's boundary is where drift and the ragged outline of real ASRs (spikes
+    seen through gaps) decide, not the place; 0 is the paper's test."""
+
+    search_radius: float = 3.0
+    """m. Beyond the paper (needs ``verify``): ASRs whose global polygon comes within this distance of
+    the current centre without containing it are aligned by their surfaces, and become candidates if
+    the crosscheck passes with the alignment applied (reason ``aligned-crosscheck``). Recovers
+    revisits whose centre drift pushed just outside the earlier ASR. 0: the paper's candidates only."""
+
     hindsight: bool = True
     """§7: when ASR k matches j, accept earlier crosscheck-rejected pairs (a, b) where a is a
     topological neighbour of k and b of j (the paper's ASR6/ASR7 case, in hindsight)."""
@@ -59,9 +70,9 @@ class CycleParams:
     verify_inlier_distance: float = 0.2
     """m. A surface point is an inlier when its nearest surface point of the other ASR is this close."""
 
-    verify_max_correction: float = 2.0
-    """m. The ICP correction may move the current ASR this far at most: beyond it the drift is
-    larger than the overlap test assumed and the alignment found is a different local minimum."""
+    verify_max_correction: float = 3.0
+    """m. The ICP correction may move the current ASR this far at most (as far as ``search_radius``
+    looks): beyond it the alignment found is more likely another local minimum than the drift."""
 
     verify_max_rotation: float = 0.5
     """rad. Largest rotation ICP may apply (same reason as ``verify_max_correction``)."""
@@ -70,6 +81,12 @@ class CycleParams:
     """Largest fraction of either ASR's surface points that may lie inside the other's free space
     after alignment. Two views of one place never see a wall where the other saw through; two
     similar but different places (or a wrong alignment) do."""
+
+    verify_min_constraint: float = 0.1
+    """Smallest eigenvalue (0..0.5) of the matched surfaces' normal scatter, required of a candidate
+    found only by ``search_radius`` (its alignment is the only evidence). Along a straight corridor
+    (all normals parallel, ~0) an alignment says nothing about the position along it, so it cannot
+    make a match; an L-corner or a room gives 0.2-0.5."""
 
     verify_free_space_margin: float = 0.3
     """m. How deep inside the other polygon a surface point must lie to count as a violation:
@@ -106,7 +123,14 @@ class CycleParams:
     @classmethod
     def paper(cls) -> CycleParams:
         """The paper's plain method: crosscheck and best overlap, no hindsight/verification/realignment."""
-        return cls(hindsight=False, verify=False, realign=False, exclude_hops=1)
+        return cls(
+            hindsight=False,
+            verify=False,
+            realign=False,
+            exclude_hops=1,
+            crosscheck_margin=0.0,
+            search_radius=0.0,
+        )
 
     def replace(self, **changes) -> CycleParams:
         """A copy with some fields changed."""

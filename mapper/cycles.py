@@ -94,9 +94,10 @@ class SpatialIndex:
             vers = np.array([self._version[int(i)] for i in ids])
             self._levels.append((shapely.STRtree([geoms[int(i)] for i in ids]), ids, vers))
 
-    def containing(self, x: float, y: float) -> list[int]:
-        """Ids whose polygon contains (or touches) the point (x, y), ascending."""
-        pt = shapely.Point(x, y)
+    def containing(self, x: float, y: float, radius: float = 0.0) -> list[int]:
+        """Ids whose polygon contains (or touches) the point (x, y), or, with ``radius`` > 0 (m),
+        comes within ``radius`` of it; ascending."""
+        pt = shapely.Point(x, y) if radius <= 0 else shapely.Point(x, y).buffer(radius, quad_segs=4)
         out = set()
         for tree, ids, vers in self._levels:
             for n in tree.query(pt, predicate="intersects"):
@@ -108,7 +109,7 @@ class SpatialIndex:
 
 def surface_points(asr: ASR, spacing: float, origin: Pose | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Points (N, 2) every ``spacing`` m along the ASR's ``surface`` edges and their unit normals
-    (N, 2), both in the global frame."""
+    (N, 2) pointing into the ASR, both in the global frame."""
     b = np.asarray(asr.boundary, dtype=float)
     if len(b) < 2:
         return np.zeros((0, 2)), np.zeros((0, 2))
@@ -126,7 +127,9 @@ def surface_points(asr: ASR, spacing: float, origin: Pose | None = None) -> tupl
     frac = (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts) + 0.5) / counts[seg]
     pts = a[seg] + frac[:, None] * (c[seg] - a[seg])
     d = (c - a) / lengths[:, None]
-    normals = np.c_[-d[:, 1], d[:, 0]][seg]
+    # Left of each edge is inside for a counter-clockwise boundary; flip for a clockwise one.
+    inward = 1.0 if float(np.sum(b[:, 0] * nxt[:, 1] - nxt[:, 0] * b[:, 1])) >= 0 else -1.0
+    normals = inward * np.c_[-d[:, 1], d[:, 0]][seg]
     pose = asr.origin if origin is None else origin
     rot = transform_points((0.0, 0.0, pose[2]), normals)
     return transform_points(pose, pts), rot
@@ -142,6 +145,10 @@ class Alignment:
     rms: float
     inliers: float
     shift: float
+    constraint: float = 0.0
+    """Smallest eigenvalue of the matched surfaces' normal scatter (mean n nᵀ of unit normals), 0..0.5:
+    0 when every matched surface is parallel (a straight corridor, where the alignment along it is
+    unobserved), 0.5 when they face every way equally (a room's four walls)."""
     violation: float = 0.0
     """Fraction of surface points that, after the alignment, lie inside the other ASR's free space
     (deeper than a margin into its polygon): walls where the other place has none. Set by the caller."""
@@ -165,8 +172,13 @@ def align_points(
     inlier_distance: float,
     start_distance: float = 1.0,
     iterations: int = 30,
+    p_normals: np.ndarray | None = None,
 ) -> Alignment | None:
     """Trimmed point-to-plane ICP of P (N, 2) onto surfaces sampled as Q (M, 2) with unit normals.
+
+    With ``p_normals`` (the unit normals of P's surfaces, pointing into P's ASR like Q's), a point
+    only corresponds to one of its 4 nearest Q points whose surface faces the same way (within 60°):
+    a room's west wall never pairs with the east wall, even when drift put it nearer.
 
     Global frame, metres. Each step solves the linearised least squares for (dθ, dx, dy) of
     Σ ((R p + t - q)·n)², damped (Levenberg) so that a direction the surfaces do not constrain
@@ -184,8 +196,21 @@ def align_points(
         [np.geomspace(start_distance, inlier_distance, ramp), np.full(iterations - ramp, inlier_distance)]
     )
     damping = 1e-3 * len(p)
+
+    def nearest(pts: np.ndarray, rot: float, gate: float):
+        if p_normals is None:
+            return tree.query(pts, distance_upper_bound=gate)
+        k = min(4, len(q))
+        d, j = tree.query(pts, k=k, distance_upper_bound=gate)
+        facing = transform_points((0.0, 0.0, rot), p_normals)
+        jj = np.minimum(j, len(q) - 1)
+        ok = np.isfinite(d) & (np.einsum("nkc,nc->nk", q_normals[jj], facing) > 0.5)
+        first = np.argmax(ok, axis=1)
+        rows = np.arange(len(pts))
+        return np.where(ok[rows, first], d[rows, first], np.inf), jj[rows, first]
+
     for gate in gates:
-        d, j = tree.query(cur, distance_upper_bound=gate)
+        d, j = nearest(cur, total[2], gate)
         ok = np.isfinite(d)
         if ok.sum() < 10:
             return None
@@ -206,9 +231,11 @@ def align_points(
         cur = transform_points(total, p)
         if gate == inlier_distance and abs(x[0]) + abs(x[1]) + abs(x[2]) < 1e-6:
             break
-    d, j = tree.query(cur, distance_upper_bound=inlier_distance)
+    d, j = nearest(cur, total[2], inlier_distance)
     ok = np.isfinite(d)
     dist = np.abs(np.einsum("ij,ij->i", cur[ok] - q[j[ok]], q_normals[j[ok]]))
     rms = float(np.sqrt(np.mean(dist**2))) if ok.any() else math.inf
     shift = float(np.hypot(*(cur.mean(axis=0) - p.mean(axis=0))))
-    return Alignment((total[0], total[1], wrap(total[2])), rms, float(ok.mean()), shift)
+    nn = q_normals[j[ok]]
+    constraint = float(np.linalg.eigvalsh(nn.T @ nn / len(nn))[0]) if len(nn) else 0.0
+    return Alignment((total[0], total[1], wrap(total[2])), rms, float(ok.mean()), shift, constraint)

@@ -74,6 +74,16 @@ class CycleRecord:
         }
 
 
+def _mutual(poly_a, ca, poly_b, cb, margin: float) -> bool:
+    """The centre crosscheck: each centre (m, global) inside the other polygon, at least ``margin``
+    (m) from its boundary when ``margin`` > 0."""
+    if margin > 0:
+        inner_a, inner_b = poly_a.buffer(-margin), poly_b.buffer(-margin)
+    else:
+        inner_a, inner_b = poly_a, poly_b
+    return bool(inner_b.intersects(shapely.Point(ca)) and inner_a.intersects(shapely.Point(cb)))
+
+
 class GlobalMap:
     """ASRs placed in one global frame, their topology, and cycle closing over them."""
 
@@ -165,29 +175,37 @@ class GlobalMap:
         own = self.topology.canonical(n)
         events: list[Event] = []
         survivors = []
-        for m in self.index.containing(*c):
+        centre = shapely.Point(c)
+        for m in self.index.containing(*c, radius=p.search_radius):
             if m in excluded or self.topology.canonical(m) == own:
                 continue
             pm = self.index.geometry(m)
             cm = global_centre(self.asrs[m])
             overlap = iou(poly, pm)
-            if not poly.intersects(shapely.Point(cm)):
+            if not pm.intersects(centre):
+                # Beyond the paper: near, not containing. Only surface alignment can make it a
+                # match: the crosscheck is run again with the alignment applied (in _verified).
+                align = self._align(n, m, gate=max(1.0, p.search_radius))
+                if self._verified(align, n, m) and align.constraint >= p.verify_min_constraint:
+                    survivors.append((overlap, m, cm, "aligned-crosscheck", align))
+                continue
+            if not _mutual(poly, c, pm, cm, p.crosscheck_margin):
                 self._rejected.setdefault((n, m), t)
                 events += self._decide(t, n, m, c, cm, overlap, "centre-crosscheck", False)
             else:
-                survivors.append((overlap, m, cm))
+                survivors.append((overlap, m, cm, "centre-crosscheck", None))
         survivors.sort(key=lambda s: (-s[0], s[1]))
         done = False
-        for overlap, m, cm in survivors:
+        for overlap, m, cm, rule, found in survivors:
             if done:
                 events += self._decide(t, n, m, c, cm, overlap, "lower-overlap", False)
                 continue
-            align = self._align(n, m) if (p.verify or p.realign) else None
-            if p.verify and not self._verified(align):
+            align = found or (self._align(n, m) if (p.verify or p.realign) else None)
+            if p.verify and not self._verified(align, n, m):
                 events += self._decide(t, n, m, c, cm, overlap, "verification", False)
                 continue
             done = True
-            events += self._close(t, n, m, c, cm, overlap, "centre-crosscheck", align)
+            events += self._close(t, n, m, c, cm, overlap, rule, align)
         if done and p.realign:
             events += self.realign(t)
         return events
@@ -215,21 +233,23 @@ class GlobalMap:
         cls = CycleDetected if accepted else CycleRejected
         return [cls(float(t), n, m, tuple(c), tuple(cm), float(overlap), reason)]
 
-    def _align(self, n: int, m: int) -> Alignment | None:
-        a = self._align_pair(n, m)
+    def _align(self, n: int, m: int, gate: float = 1.0) -> Alignment | None:
+        """Surface alignment of n onto m (see :meth:`_align_pair`); ``gate``: ICP's first
+        correspondence distance (m), about the largest drift it is meant to pull in."""
+        a = self._align_pair(n, m, gate)
         self.alignments[(n, m)] = a
         return a
 
-    def _align_pair(self, n: int, m: int) -> Alignment | None:
+    def _align_pair(self, n: int, m: int, gate: float) -> Alignment | None:
         p = self.params
         pn, nn = surface_points(self.asrs[n], p.sample_spacing)
         pm, nm = surface_points(self.asrs[m], p.sample_spacing)
         # Align the smaller set onto the larger one: the inlier fraction is then about the part
         # of the smaller ASR the larger one explains.
         if len(pn) <= len(pm):
-            a = align_points(pn, pm, nm, p.verify_inlier_distance)
+            a = align_points(pn, pm, nm, p.verify_inlier_distance, gate, p_normals=nn)
         else:
-            a = align_points(pm, pn, nn, p.verify_inlier_distance)
+            a = align_points(pm, pn, nn, p.verify_inlier_distance, gate, p_normals=nm)
             a = None if a is None else dataclasses.replace(a, correction=inverse(a.correction))
         if a is None:
             return None
@@ -243,10 +263,16 @@ class GlobalMap:
         )
         return dataclasses.replace(a, violation=violation)
 
-    def _verified(self, a: Alignment | None) -> bool:
+    def _verified(self, a: Alignment | None, n: int, m: int) -> bool:
+        """The alignment is good, and with it applied to n the centre crosscheck still passes."""
         p = self.params
+        if a is None:
+            return False
+        moved = compose(a.correction, self.asrs[n].origin)
+        poly_n, c_n = global_polygon(self.asrs[n], moved), global_centre(self.asrs[n], moved)
+        poly_m, c_m = global_polygon(self.asrs[m]), global_centre(self.asrs[m])
         return (
-            a is not None
+            _mutual(poly_n, c_n, poly_m, c_m, p.crosscheck_margin)
             and a.rms <= p.verify_max_residual
             and a.inliers >= p.verify_min_inliers
             and a.shift <= p.verify_max_correction
@@ -259,7 +285,7 @@ class GlobalMap:
         dup, match = self.asrs[n], self.asrs[m]
         dup.duplicate_of = m
         self._closed.add(n)
-        good = align is not None and self._verified(align)
+        good = align is not None and self._verified(align, n, m)
         # dup's frame corrected onto match (global frame), then match's frame seen from dup's.
         dup_origin = compose(align.correction, dup.origin) if good else dup.origin
         rel_nm = between(dup_origin, match.origin)
@@ -314,11 +340,11 @@ class GlobalMap:
             moved = compose(correction, self.asrs[a].origin)
             pa, ca = global_polygon(self.asrs[a], moved), global_centre(self.asrs[a], moved)
             pb, cb = global_polygon(self.asrs[b]), global_centre(self.asrs[b])
-            if not (pb.intersects(shapely.Point(ca)) and pa.intersects(shapely.Point(cb))):
+            if not _mutual(pa, ca, pb, cb, self.params.crosscheck_margin):
                 continue
             del self._rejected[(a, b)]
             align = self._align(a, b) if (self.params.verify or self.params.realign) else None
-            if self.params.verify and not self._verified(align):
+            if self.params.verify and not self._verified(align, a, b):
                 continue
             events += self._close(t, a, b, ca, cb, iou(pa, pb), "hindsight", align)
         return events

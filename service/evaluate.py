@@ -27,6 +27,7 @@ inside the corrected logs") and returns the FLASER poses as the truth.
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -105,12 +106,16 @@ def is_corrected(path: str | Path, probe: int = 50) -> bool:
     return False
 
 
-def rebuild_corrected(path: str | Path) -> tuple[list[Odometry | Scan], Track]:
+def rebuild_corrected(path: str | Path, retime_period: float = 1.0) -> tuple[list[Odometry | Scan], Track]:
     """Drifting odometry rebuilt from a corrected log's ODOM increments, its scans, and its truth.
 
     Each laser line k carries the corrected pose C_k; the last ``ODOM`` before line k+1 is
     C_k ⊕ (raw increment), so the raw increment is C_k⁻¹ ⊕ O and the dead-reckoned pose
     D_{k+1} = D_k ⊕ (C_k⁻¹ ⊕ O). D starts at C_0. Returns ([Odometry(t_k, D_k), Scan_k, ...], truth).
+
+    A log whose timestamps lost their precision (``csail-corrected.log.gz`` writes ``1.13486e+09``:
+    many scans share one time) is re-timed ``retime_period`` seconds apart from its first scan, for
+    the inputs and the truth alike (the mapper needs distinct times to interpolate odometry).
     """
     inputs: list[Odometry | Scan] = []
     truth = Track()
@@ -132,6 +137,16 @@ def rebuild_corrected(path: str | Path) -> tuple[list[Odometry | Scan], Track]:
         truth.append(rec.t, rec.pose)
         inputs.append(Odometry(rec.t, *dead))
         inputs.append(rec.scan())
+    if len(set(truth.t)) < len(truth.t):
+        t0 = truth.t[0]
+        poses = truth.poses
+        truth = Track([t0 + k * retime_period for k in range(len(poses))], poses)
+        inputs = [
+            Odometry(truth.t[k // 2], r.x, r.y, r.theta)
+            if isinstance(r, Odometry)
+            else dataclasses.replace(r, t=truth.t[k // 2])
+            for k, r in enumerate(inputs)
+        ]
     return inputs, truth
 
 
