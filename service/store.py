@@ -40,6 +40,10 @@ def _dumps(v: Any) -> str:
     return json.dumps(v, separators=(",", ":"), allow_nan=False)
 
 
+class StoreError(OSError):
+    """The map store cannot be opened or written (a path, a permission, a full disk)."""
+
+
 @dataclass(frozen=True)
 class Synced:
     """What one :meth:`MapStore.sync` wrote: ``rows`` in all, and the ids of the ASRs upserted."""
@@ -58,8 +62,13 @@ class MapStore:
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._db = self._open()
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._db = self._open()
+        except (OSError, sqlite3.OperationalError) as exc:
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            raise StoreError(f"cannot open the map store {self.path}: {reason}; check [store] state_dir "
+                             "and its permissions (under systemd: StateDirectory=asrmap)") from None
         # What is on disk, as JSON text per row, so that sync() writes only what changed.
         self._asrs: dict[int, str] = {}
         self._links: dict[tuple[int, str], str] = {}

@@ -194,6 +194,8 @@ def test_a_refused_command_has_no_effect_and_an_allowed_stop_stops_the_robot(tmp
     ('[pioneer]\nprot = "/dev/ttyUSB0"\n', "pioneer.prot: expected one of the keys port, baudrate, model; "
                                             "found an unknown key"),
     ("[zenoh\n", "not valid TOML"),
+    (f'[zenoh]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n[store]\nstate_dir = "/dev/null/asrmap"\n',
+     "cannot open the map store /dev/null/asrmap/map.sqlite: Not a directory; check [store] state_dir"),
 ])
 def test_a_bad_config_file_is_one_clear_line(tmp_path, text, line):
     cfg = tmp_path / "bad.toml"
@@ -202,7 +204,7 @@ def test_a_bad_config_file_is_one_clear_line(tmp_path, text, line):
                        capture_output=True, text=True, timeout=30)
     assert r.returncode == 2 and r.stdout == ""
     lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"asrmap run: {cfg}: ") and line in lines[0], r.stderr
+    assert len(lines) == 1 and lines[0].startswith("asrmap run: ") and line in lines[0], r.stderr
 
 
 def test_a_busy_zenoh_port_is_one_clear_line(rig, tmp_path):

@@ -10,7 +10,9 @@ import sys
 import textwrap
 import time
 
-from service.store import MapStore, Synced
+import pytest
+
+from service.store import MapStore, StoreError, Synced
 
 
 def _asr(i: int, scans: int = 1, gen: int = 0) -> dict:
@@ -97,11 +99,17 @@ def test_the_robots_pose_is_kept_apart_from_the_map(tmp_path):
         assert s.load_pose() == (2, (0.75, -0.25, 1.0)) and s.load() == _doc(2)
 
 
+def test_an_unusable_state_directory_is_one_clear_error(tmp_path):
+    (tmp_path / "file").write_text("not a directory")
+    with pytest.raises(StoreError, match=r"cannot open the map store .*file/map.sqlite: .*state_dir"):
+        MapStore(tmp_path / "file" / "map.sqlite")
+
+
 _WRITER = textwrap.dedent("""
     import sys
     sys.path.insert(0, {root!r})
     from tests.test_store import _doc
-    from service.store import MapStore, Synced
+    from service.store import MapStore
     s = MapStore(sys.argv[1])
     start = (s.load() or {{"cycles": []}})["cycles"]
     gen = len(start)
