@@ -42,50 +42,49 @@ from mapper.types import ASR, Exit
 from mapper.view import View, valid_polygon
 
 _PARALLEL = math.cos(math.radians(20.0))
-_BRUTE_FORCE_PAIRS = 20_000  # edge-segment pairs below which numpy broadcasting beats an STRtree
 _SAMPLES = np.linspace(0.1, 0.9, 5)  # fractions along an exit tested for being covered by surfaces
 
 
-def _point_segment(p: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distances (P, S) from points (P, 2) to segments (S, 2, 2), and the fractions t along them."""
-    q, t = closest_on_segments(p[:, None, :], seg[None])
-    d = q - p[:, None, :]
-    return np.hypot(d[..., 0], d[..., 1]), t
+def _pairs_within(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.ndarray, ...]:
+    """The (point, segment) pairs closer than ``tol`` (m): point and segment indices and distances.
+
+    A bounding-box test over all pairs (four comparisons each) picks the few candidates whose exact
+    distance is then computed, so the cost stays a handful of numpy operations whatever the sizes
+    of an ASR's boundary and label store.
+    """
+    lo = seg.min(axis=1) - tol  # (S, 2)
+    hi = seg.max(axis=1) + tol
+    x, y = p[:, 0:1], p[:, 1:2]
+    pi, si = np.nonzero((x >= lo[:, 0]) & (x <= hi[:, 0]) & (y >= lo[:, 1]) & (y <= hi[:, 1]))
+    q, _ = closest_on_segments(p[pi], seg[si])
+    d = np.hypot(*(q - p[pi]).T)
+    near = d < tol
+    return pi[near], si[near], d[near]
 
 
-def _nearest_segment(p: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For each point (P, 2): the index of its nearest segment of ``seg`` (S, 2, 2) and the distance."""
-    if len(p) * len(seg) <= _BRUTE_FORCE_PAIRS:
-        d, _ = _point_segment(p, seg)
-        e = np.argmin(d, axis=1)
-        return e, d[np.arange(len(p)), e]
-    tree = shapely.STRtree(shapely.linestrings(seg))
-    (pi, si), dist = tree.query_nearest(shapely.points(p), return_distance=True, all_matches=False)
+def _nearest_segment(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """For each point (P, 2): its nearest segment of ``seg`` (S, 2, 2) closer than ``tol`` and the
+    distance (index 0 and distance inf where none is)."""
+    pi, si, d = _pairs_within(p, seg, tol)
     e = np.zeros(len(p), dtype=int)
-    d = np.full(len(p), np.inf)
-    e[pi], d[pi] = si, dist
-    return e, d
+    dist = np.full(len(p), np.inf)
+    order = np.lexsort((d, pi))
+    first = np.append(True, np.diff(pi[order]) != 0)
+    k = order[first]
+    e[pi[k]], dist[pi[k]] = si[k], d[k]
+    return e, dist
 
 
 def _along(mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float) -> np.ndarray:
-    """(E,) True where an edge (midpoint, unit direction) lies along one of the segments.
-
-    Brute force in numpy while the pairs are few (an ASR boundary has tens of edges and its label
-    store a few hundred segments after pruning); an STRtree beyond, so the cost follows the
-    boundary's length rather than the product of the two.
-    """
+    """(E,) True where an edge (midpoint, unit direction) lies along one of the segments."""
     out = np.zeros(len(mid), dtype=bool)
     if len(seg) == 0 or len(mid) == 0:
         return out
-    sv = seg[:, 1] - seg[:, 0]
+    pi, si, _ = _pairs_within(mid, seg, tol)
+    sv = seg[si, 1] - seg[si, 0]
     sv = sv / np.maximum(np.hypot(sv[:, 0], sv[:, 1]), 1e-12)[:, None]
-    if len(mid) * len(seg) <= _BRUTE_FORCE_PAIRS:
-        d, _ = _point_segment(mid, seg)
-        return ((d < tol) & (np.abs(u @ sv.T) > _PARALLEL)).any(axis=1)
-    tree = shapely.STRtree(shapely.linestrings(seg))
-    ei, si = tree.query(shapely.points(mid), predicate="dwithin", distance=tol)
-    par = np.abs(np.einsum("ij,ij->i", u[ei], sv[si])) > _PARALLEL
-    out[ei[par]] = True
+    par = np.abs(np.einsum("ij,ij->i", u[pi], sv)) > _PARALLEL
+    out[pi[par]] = True
     return out
 
 
@@ -273,7 +272,7 @@ class AsrBuilder:
         tol = self.p.simplify_tolerance
         x = self.exit_segments.reshape(-1, 2)
         edges = np.stack([v, np.roll(v, -1, axis=0)], axis=1)
-        e, dist = _nearest_segment(x, edges)
+        e, dist = _nearest_segment(x, edges, self.p.label_tolerance)
         a = edges[e, 0]
         ab = edges[e, 1] - a
         length = np.hypot(ab[:, 0], ab[:, 1])
@@ -345,8 +344,9 @@ class AsrBuilder:
             seg = getattr(self, name)
             if len(seg) == 0:
                 continue
-            _, d = _nearest_segment(0.5 * (seg[:, 0] + seg[:, 1]), edges)
-            near = d < tol + 0.5 * np.hypot(*(seg[:, 1] - seg[:, 0]).T)
+            half = 0.5 * np.hypot(*(seg[:, 1] - seg[:, 0]).T)
+            _, d = _nearest_segment(0.5 * (seg[:, 0] + seg[:, 1]), edges, tol + float(half.max()))
+            near = d < tol + half
             setattr(self, name, seg[near])
         self._pruned_size = max(len(self.surfaces) + len(self.exit_segments), 16)
 
