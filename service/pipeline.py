@@ -225,6 +225,10 @@ class Link:
                     if silent > self.stale_after:
                         self._set("fault", f"no data for {silent:.2f} s")
                         break
+            except Exception as exc:  # a bug in a callback must not end the watching of a device
+                log.exception("%s: link supervision failed", self.name)
+                self.state, self.reason = "fault", f"internal error: {exc}"
+                self._stop.wait(self.retry)
             finally:
                 self.device = None
                 self._close(dev)
@@ -263,20 +267,25 @@ class Exploration:
     :meth:`step` runs after each mapped scan: it commands at most every ``period`` seconds (P2OS at
     9600 baud carries ~50 velocity commands a second, and the robot's control loop runs at 10 Hz),
     and only from a fresh scan (``max_age`` seconds): a mapper that fell behind must not steer by
-    what the laser saw long ago, so the robot is stopped instead. :meth:`stop` holds the same lock
-    as a step, so no velocity command follows a stop.
+    what the laser saw long ago, so the robot is stopped instead. :meth:`check`, from the main
+    loop, stops the robot when no command went out for ``silence`` seconds (a mapper that hangs:
+    the driver's keep-alive would otherwise let the last command run on). :meth:`stop` holds the
+    same lock as a step, so no velocity command follows a stop.
     """
 
     def __init__(self, send: Callable[[float, float], Any], stalled: Callable[[], bool],
-                 period: float = 0.1, max_age: float = 0.3):
+                 period: float = 0.1, max_age: float = 0.3, silence: float = 0.5):
         self._send = send
         self._stalled = stalled
         self.period = period
         self.max_age = max_age
+        self.silence = silence
         self.active = False
         self.status = "idle"
         self.explorer: Any = None
         self._next = 0.0
+        self._last_sent = 0.0
+        self._halted = False
         self._lock = threading.Lock()
 
     def start(self) -> None:
@@ -286,6 +295,7 @@ class Exploration:
             if not self.active:
                 self.explorer = Explorer()
                 self.active, self.status = True, "starting"
+                self._last_sent, self._halted = time.monotonic(), False
                 log.info("exploration started")
 
     def stop(self, why: str) -> bool:
@@ -297,6 +307,23 @@ class Exploration:
                 log.info("exploration stopped: %s", why)
             return was
 
+    def _command(self, v: float, w: float) -> None:
+        try:
+            self._send(v, w)
+        except Exception as exc:  # the Pioneer went away between the check and the write
+            self.active, self.status = False, f"stopped: cannot drive ({exc})"
+            log.warning("exploration stopped: cannot drive: %s", exc)
+            return
+        self._last_sent, self._halted = time.monotonic(), v == 0.0 and w == 0.0
+
+    def check(self, now: float) -> None:
+        """Stop the robot once if exploring and no command went out for ``silence`` seconds."""
+        with self._lock:
+            if self.active and not self._halted and now - self._last_sent > self.silence:
+                self.status = f"paused: no command for {now - self._last_sent:.1f} s (the mapper is behind)"
+                log.warning("exploration paused: %s", self.status)
+                self._command(0.0, 0.0)
+
     def step(self, mapper: Any, document: dict[str, Any], scan: Any) -> None:
         from service.explore import MapView, links_of, scan_points
 
@@ -307,7 +334,8 @@ class Exploration:
             self._next = now + self.period
             if now - scan.t > self.max_age:
                 self.status = f"paused: the newest mapped scan is {now - scan.t:.2f} s old"
-                self._send(0.0, 0.0)
+                if not self._halted:
+                    self._command(0.0, 0.0)
                 return
             if mapper.current is None:
                 self.status = "waiting for the first ASR"
@@ -318,10 +346,10 @@ class Exploration:
             view = MapView(mapper.current, mapper.pose, mapper.asrs, links_of(document.get("links", ())))
             cmd = ex.step(view, pts, scan.t, self._stalled())
             self.status = cmd.status
-            self._send(cmd.v, cmd.w)
-            if cmd.done:
+            self._command(cmd.v, cmd.w)
+            if cmd.done and self.active:
                 self.active, self.status = False, "done: every exit explored"
-                self._send(0.0, 0.0)
+                self._command(0.0, 0.0)
                 log.info("exploration done")
 
 
@@ -681,6 +709,7 @@ class Service:
                     self._blind_stop_sent = self.stop_robot("the laser is blind")
             else:
                 self._blind_stop_sent = False
+            self.exploration.check(now)
             busy = self.worker.busy_since
             stalled = busy is not None and now - busy > cfg.watchdog.mapper_stall
             if interval and now >= next_ping and not stalled:

@@ -367,6 +367,31 @@ def test_exploration_drives_from_fresh_scans_only():
     ex.step(mapper, {"links": []}, _scan(time.monotonic()))
     ex.step(mapper, {"links": []}, _scan(time.monotonic() - 1.0))
     assert sent == [(0.3, 0.1), (0.0, 0.0)] and ex.status.startswith("paused: the newest mapped scan")
+    ex.step(mapper, {"links": []}, _scan(time.monotonic() - 1.0))
+    assert len(sent) == 2  # stopped once, not on every late scan
+
+
+def test_a_silent_exploration_stops_the_robot_once():
+    ex, sent = _exploring(_Explorer())
+    mapper = SimpleNamespace(current=1, pose=(0.0, 0.0, 0.0), asrs={})
+    ex.step(mapper, {}, _scan(time.monotonic()))
+    ex.check(time.monotonic())
+    ex.check(time.monotonic() + 1.0)
+    ex.check(time.monotonic() + 2.0)
+    assert sent == [(0.3, 0.1), (0.0, 0.0)] and ex.active and ex.status.startswith("paused: no command")
+
+
+def test_exploration_ends_when_the_pioneer_cannot_be_driven():
+    from service.pipeline import Exploration
+
+    def refuse(v, w):
+        raise ConnectionError("the Pioneer is not connected")
+
+    ex = Exploration(refuse, lambda: False, period=0.0)
+    ex.start()
+    ex.explorer = _Explorer()
+    ex.step(SimpleNamespace(current=1, pose=(0.0, 0.0, 0.0), asrs={}), {}, _scan(time.monotonic()))
+    assert not ex.active and ex.status.startswith("stopped: cannot drive")
 
 
 def test_no_velocity_follows_a_stop_and_done_stops_the_robot():
