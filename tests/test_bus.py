@@ -205,3 +205,31 @@ def test_a_zenoh_file_replaces_the_default_session(tmp_path, client, endpoint):
     with Bus("r1", ZenohConfig(listen=(), config=str(cfg)), lambda: DOC):
         doc, _ = get(client, "asrmap/r1/map")
     assert doc == DOC
+
+
+ACL = """{
+  mode: "peer",
+  listen: { endpoints: ["%s"] },
+  scouting: { multicast: { enabled: false }, gossip: { enabled: false } },
+  access_control: {
+    enabled: true,
+    default_permission: "allow",
+    rules: [ { id: "no-commands", permission: "deny", flows: ["ingress"],
+               messages: ["query"], key_exprs: ["asrmap/*/cmd/**"] } ],
+    subjects: [ { id: "network", interfaces: ["lo"] } ],
+    policies: [ { rules: ["no-commands"], subjects: ["network"] } ],
+  },
+}"""
+
+
+def test_zenoh_access_control_in_the_config_file_keeps_commands_from_a_network(tmp_path, endpoint, client):
+    """The README's example (with the loopback interface standing for the robot's wifi): a command
+    query arriving there never reaches the service, even with the command allowed; the map does."""
+    (tmp_path / "z.json5").write_text(ACL % endpoint)
+    called = []
+    zcfg = ZenohConfig(listen=(), config=str(tmp_path / "z.json5"), allow_commands=("stop",))
+    with Bus("r1", zcfg, lambda: DOC, lambda n, p: called.append(n) or {}):
+        doc, _ = get(client, "asrmap/r1/map")
+        assert doc == DOC
+        assert list(client.get("asrmap/r1/cmd/stop", timeout=1.0)) == []
+    assert called == []
