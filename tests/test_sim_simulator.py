@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import json
 import math
+import time
 
+import numpy as np
 import pytest
 
 from service.cli import main
-from service.sim.simulator import DirectSim, SimParams, SimRobot, StackSim
+from service.sim.simulator import DirectSim, SimParams, SimRobot, StackSim, WorldDevices
 from service.sim.world import load_world, parse_world
 
 
@@ -31,6 +33,26 @@ def test_the_pioneer_drive_stalls_at_a_wall_and_keeps_ground_truth():
     assert robot.true_pose_at(t[0])[0] == pytest.approx(robot.body.pose[0])
     # Odometry is the emulator's, with its error model: it starts at (0, 0, 0) and does not see the wall.
     assert drive.odometry_pose[0] == pytest.approx((4.0 - 0.210 - 1.0) * 1.01, abs=0.02)
+
+
+def test_world_devices_answer_the_drivers_with_the_world():
+    from laser import LMS2xx
+    from pioneer import Pioneer
+
+    world = load_world("office")  # starts at (1.5, 4.9) facing east along the 15 m corridor
+    with WorldDevices(world) as dev, LMS2xx(dev.laser_path, 38400) as lms:
+        scan = lms.read(timeout=5.0)
+        assert scan is not None
+        ranges, angles = np.asarray(scan.ranges), np.asarray(scan.angles)
+        # Straight ahead: the corridor's end wall, 13.5 m away, is beyond the 8.191 m range.
+        assert ranges[np.argmin(np.abs(angles))] == pytest.approx(8.191, abs=0.01)
+        # To the right (-90 deg): the corridor's south wall 0.9 m away, less the laser's 8 mm offset.
+        assert ranges[0] == pytest.approx(0.9 + 0.008, abs=0.05)
+        with Pioneer(dev.pioneer_path) as robot:
+            robot.set_velocity(0.3, 0.0)
+            time.sleep(1.5)
+            robot.stop()
+        assert dev.robot.body.pose[0] > world.start[0] + 0.2  # moved east in the world
 
 
 def test_a_short_direct_run_explores_without_touching_anything():
