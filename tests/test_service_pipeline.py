@@ -224,7 +224,8 @@ class Bench:
         self.cfg = dataclasses.replace(
             Config(), zenoh=ZenohConfig(listen=(self.ep,), allow_commands=allow),
             store=StoreConfig(state_dir=str(tmp_path)),
-            watchdog=WatchdogConfig(scan_timeout=0.2, odometry_timeout=0.2, reconnect_interval=0.05))
+            watchdog=WatchdogConfig(scan_timeout=0.2, odometry_timeout=0.2, reconnect_interval=0.05,
+                                    mapper_stall=1.0))
         self.notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         (tmp_path / "notify").unlink(missing_ok=True)
         self.notify.bind(str(tmp_path / "notify"))
@@ -404,3 +405,29 @@ def test_no_velocity_follows_a_stop_and_done_stops_the_robot():
     assert ex.stop("cmd/stop") and not ex.stop("again")
     ex.step(mapper, {}, _scan(time.monotonic()))
     assert len(sent) == 3 and ex.status == "stopped: cmd/stop"
+
+
+class HangingMapper(FakeMapper):
+    """Takes ``hang`` seconds over its third scan, as a wedged computation would."""
+
+    def __init__(self, hang: float):
+        super().__init__()
+        self.hang = hang
+
+    def add_scan(self, scan):
+        if self.n == 2:
+            time.sleep(self.hang)
+        return super().add_scan(scan)
+
+
+def test_a_wedged_mapper_stops_the_watchdog_pings(tmp_path):
+    with Bench(tmp_path, new_mapper=lambda c, doc: HangingMapper(2.5)) as b:
+        b.messages("READY=1")
+        pings = []
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline:
+            if b.notify.recv(4096) == b"WATCHDOG=1":
+                pings.append(time.monotonic())
+        gaps = np.diff(pings)
+        # Pinged every 0.1 s (WATCHDOG_USEC 0.2 s) except while the mapper was stuck beyond 1 s.
+        assert gaps.max() > 1.0 and np.median(gaps) < 0.15
