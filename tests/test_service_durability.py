@@ -50,6 +50,16 @@ class Published:
             return dict(self.asrs), self.pose_t
 
 
+def _map(session: zenoh.Session) -> dict:
+    deadline = time.monotonic() + 5
+    while time.monotonic() < deadline:
+        for r in session.get("asrmap/dur/map", timeout=2.0):
+            if r.ok:
+                return json.loads(r.ok.payload.to_bytes())
+        time.sleep(0.1)
+    raise AssertionError("the restarted service did not answer the map query")
+
+
 def _check_restored(stored: dict, published: dict[int, dict]) -> None:
     by_id = {a["id"]: a for a in stored["asrs"]}
     missing = sorted(set(published) - set(by_id))
@@ -77,6 +87,8 @@ def test_every_restored_map_holds_what_was_published_before_each_sigkill(tmp_pat
                 "--log", str(shared_data / LOG), "--start", str(start), "--rate", "60"])
             try:
                 child.notify.wait_for("READY=1", 30)
+                if ever:  # the restarted service serves the restored map
+                    assert ever <= {a["id"] for a in _map(session)["asrs"]}
                 time.sleep(rng.uniform(0.8, 1.6))
             finally:
                 child.kill()
