@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import serial
 
+import serialport
 from laser import protocol as p
 from laser.errors import CHECKS, ConfigError, LaserError, LinkLost, ProtocolError
 from laser.telegram import FrameReader, Telegram, request
@@ -141,9 +142,10 @@ class LMS2xx:
         self._thread: threading.Thread | None = None
         self._last_scan = time.monotonic()
         try:
-            self._ser = serial.serial_for_url(port, baudrate=baudrate, timeout=_READ_S, write_timeout=2.0)
-        except (serial.SerialException, OSError) as exc:
-            raise LinkLost(f"cannot open {port}: {exc}; {CHECKS}") from exc
+            self._ser = serialport.open_port(port, baudrate, timeout=_READ_S, write_timeout=2.0,
+                                             what="the LMS2xx")
+        except serialport.PortError as exc:
+            raise LinkLost(str(exc)) from exc
         try:
             self._startup(time.monotonic() + self.timeouts.connect, reset=reset)
         except BaseException:

@@ -32,6 +32,7 @@ from typing import Any
 
 import serial
 
+import serialport
 from pioneer.commands import CONFIG_PAC, ENCODER_PAC, SIP_TYPES, Command, command, cstrings, vel2_arg
 from pioneer.errors import CHECKS, LinkLost, PioneerError, PortUnavailable, ProtocolError
 from pioneer.odometry import OdometryIntegrator, PioneerOdometry, wrap15
@@ -82,19 +83,15 @@ class _Closing(Exception):
 
 
 def open_port(port: str, baudrate: int, read_timeout: float = 0.02) -> serial.SerialBase:
-    """``port`` (a device or any ``serial.serial_for_url`` URL) at ``baudrate``, 8N1, raw.
+    """``port`` (a device or any ``serial.serial_for_url`` URL) at ``baudrate``, 8N1, raw, locked
+    exclusively (:func:`serialport.open_port`).
 
-    Raises :class:`PortUnavailable` with what to check."""
+    Raises :class:`PortUnavailable` naming the cause (missing, permission, busy and by whom) and the fix."""
     try:
-        return serial.serial_for_url(port, baudrate=baudrate, timeout=read_timeout, write_timeout=1.0)
-    except (serial.SerialException, OSError, ValueError) as exc:
-        hint = (
-            "add yourself to the dialout group (sudo usermod -aG dialout $USER) and log in again"
-            if "ermission" in str(exc)
-            else "check the port name (ls /dev/ttyUSB* /dev/ttyS*), that the USB adapter is plugged "
-            "in and that no other program (ARIA, Player, ROS) holds the port"
-        )
-        raise PortUnavailable(f"cannot open {port!r} at {baudrate} baud: {exc}; {hint}") from exc
+        return serialport.open_port(port, baudrate, timeout=read_timeout, write_timeout=1.0,
+                                    what="the Pioneer")
+    except serialport.PortError as exc:
+        raise PortUnavailable(str(exc)) from exc
 
 
 class Pioneer:

@@ -17,7 +17,7 @@ def test_probe_laser_against_the_emulator_prints_type_config_and_scan_summary(ca
 def test_probe_laser_without_a_device_is_one_line_saying_what_to_check(capsys):
     assert main(["probe", "laser", "--port", "/dev/no-such-lms"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "cannot open /dev/no-such-lms" in err[0] and "permissions" in err[0]
+    assert len(err) == 1 and "/dev/no-such-lms does not exist" in err[0] and "udev" in err[0]
 
 
 def test_emulate_laser_prints_the_pty_path(capsys):

@@ -215,7 +215,7 @@ def test_noise_between_telegrams_never_breaks_the_stream(noise):
 
 
 def test_a_port_that_cannot_be_opened_is_link_lost_naming_it():
-    with pytest.raises(LinkLost, match="cannot open /dev/no-such-lms"):
+    with pytest.raises(LinkLost, match="cannot open the LMS2xx port: /dev/no-such-lms does not exist"):
         LMS2xx("/dev/no-such-lms", timeouts=FAST)
 
 

@@ -100,7 +100,8 @@ def test_no_answer_names_what_to_check(pty_pair):
 
 
 def test_missing_port_is_reported_with_the_port_name():
-    with pytest.raises(PortUnavailable, match=r"cannot open '/dev/no-such-pioneer'.*port name"):
+    with pytest.raises(PortUnavailable, match=r"cannot open the Pioneer port: /dev/no-such-pioneer does not exist; "
+                       r"check that the USB adapter is plugged in"):
         Pioneer("/dev/no-such-pioneer")
 
 
