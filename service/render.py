@@ -117,7 +117,7 @@ def render_svg(doc: dict, title: str | None = None) -> str:
             )
         for seg in ex:
             o.append(
-                _line(right(seg[0]), right(seg[1]), 'stroke="#1a9a3a" stroke-width="4" stroke-opacity="0.6"')
+                _line(right(seg[0]), right(seg[1]), 'stroke="#1a9a3a" stroke-width="2.5" stroke-opacity="0.5"')
             )
         x, y = right(c)
         o.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="2.5" fill="#c0392b"/>')
