@@ -137,9 +137,8 @@ def from_document(doc: dict[str, Any]) -> MapDocument:
     ids = {a.id for a in asrs}
     links = []
     for ln in doc.get("links", []):
-        link = Link(
-            int(ln["from"]), str(ln["exit"]), int(ln["to"]), ln.get("via"), bool(ln.get("oneway", False))
-        )
+        exit_id = None if ln["exit"] is None else str(ln["exit"])  # a duplicate entered by an unseen exit
+        link = Link(int(ln["from"]), exit_id, int(ln["to"]), ln.get("via"), bool(ln.get("oneway", False)))
         if link.src not in ids or link.dst not in ids:
             raise DocumentError(f"link {ln}: names an ASR the document does not hold")
         links.append(link)

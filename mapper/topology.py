@@ -35,7 +35,7 @@ class Link:
     """One edge of the map document: ``src`` --exit/via--> ``dst``; both ways unless ``oneway``."""
 
     src: int
-    exit: str
+    exit: str | None
     dst: int
     via: str | None
     oneway: bool = False

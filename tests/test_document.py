@@ -79,3 +79,11 @@ def test_a_document_of_another_schema_is_refused_with_a_reason():
     del doc["asrs"][0]["boundary"]
     with pytest.raises(DocumentError, match="boundary"):
         from_document(doc)
+
+
+def test_a_one_way_link_without_a_known_exit_round_trips():
+    # A duplicate whose entrance no view showed as an exit keeps a link with "exit": null.
+    doc = document_of(_loop_map())
+    doc["links"].append({"from": 5, "exit": None, "to": 4, "via": None, "oneway": True})
+    md = from_document(json.loads(json.dumps(doc)))
+    assert to_document(md.asrs, md.links, md.cycles, md.robot) == doc
