@@ -22,6 +22,7 @@ from mapper.se2 import transform_points
 
 PANEL = 560.0
 MARGIN = 30.0
+EXIT_STYLE = 'stroke="#1a9a3a" stroke-width="2.5" stroke-opacity="0.5"'
 EDGE_STYLE = {
     "surface": 'stroke="#111" stroke-width="1.6"',
     "exit": 'stroke="#1a9a3a" stroke-width="2.2"',
@@ -116,9 +117,7 @@ def render_svg(doc: dict, title: str | None = None) -> str:
                 _line(right(b[i]), right(b[(i + 1) % len(b)]), EDGE_STYLE.get(lab, EDGE_STYLE["unknown"]))
             )
         for seg in ex:
-            o.append(
-                _line(right(seg[0]), right(seg[1]), 'stroke="#1a9a3a" stroke-width="2.5" stroke-opacity="0.5"')
-            )
+            o.append(_line(right(seg[0]), right(seg[1]), EXIT_STYLE))
         x, y = right(c)
         o.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="2.5" fill="#c0392b"/>')
         o.append(f'<text x="{x + 3:.1f}" y="{y - 3:.1f}" font-size="9" fill="#333">{k}</text>')
