@@ -52,7 +52,8 @@ class Timeouts:
     - ``close_settle``: after CLOSE to a robot left open, before syncing again.
     - ``config``: wait for the CONFIGpac (ARIA 1 s); ``first_sip``: after OPEN.
     - ``keepalive``: PULSE when nothing was sent for this long (ARIA 0.5 s; P2OS watchdog 2 s).
-    - ``link_lost``: no SIP for this long means the link is lost (ten SIP cycles).
+    - ``link_lost``: no SIP for this long means the link is lost (five SIP cycles: a lost robot is
+      noticed within 0.5 s, well inside the 1 s a field robot may run unsupervised).
     - ``reconnect_min``/``reconnect_max``: back-off between reconnection attempts, doubling.
     - ``read``: serial read timeout; bounds how fast the thread notices close() and silences.
     """
@@ -63,7 +64,7 @@ class Timeouts:
     config: float = 1.0
     first_sip: float = 1.0
     keepalive: float = 0.5
-    link_lost: float = 1.0
+    link_lost: float = 0.5
     reconnect_min: float = 0.25
     reconnect_max: float = 5.0
     read: float = 0.02
@@ -104,6 +105,8 @@ class Pioneer:
       ("connecting", "up", "lost", "closed").
     - ``reconnect``: reconnect in the background after a lost link (else the state stays "lost").
     - ``enable_motors``: send ENABLE 1 on every (re)connect (False for a look-only connection).
+    - ``low_battery``: volts below which :attr:`alerts` reports a low battery (P2OS's own
+      CONFIGpac LowBattery is 11.0 V on a P2DX; it shuts down near 10.5 V).
 
     Raises :class:`~pioneer.errors.PortUnavailable`, :class:`~pioneer.errors.LinkLost` or
     :class:`~pioneer.errors.ProtocolError` when the first connection fails.
@@ -121,6 +124,7 @@ class Pioneer:
         on_link: Callable[[str, str], Any] | None = None,
         reconnect: bool = True,
         enable_motors: bool = True,
+        low_battery: float = 11.0,
     ) -> None:
         self.port = port
         self.baudrate = baudrate
@@ -129,6 +133,8 @@ class Pioneer:
         self.request_config = request_config
         self.reconnect = reconnect
         self.enable_motors = enable_motors
+        self.low_battery = low_battery
+        self._alerts: tuple[str, ...] = ()
         self.identity: Identity | None = None
         self.config = None
         self.encoders: EncoderCounts | None = None
@@ -187,6 +193,34 @@ class Pioneer:
             self._cond.wait_for(lambda: self._odometry is not None and self._odometry.t > since, timeout)
             odo = self._odometry
             return odo if odo is not None and odo.t > since else None
+
+    @property
+    def alerts(self) -> tuple[str, ...]:
+        """What the latest SIP says is wrong with the robot, each with its remedy: the e-stop
+        pressed, motors disabled, battery low (empty when all is well)."""
+        return self._alerts
+
+    def _check_sip(self, sip) -> None:
+        alerts = []
+        if sip.e_stop:
+            alerts.append("Pioneer e-stop pressed: the motors are cut; release the red STOP button, then "
+                          "press the MOTORS button on the robot's panel")
+        elif self.enable_motors and not sip.motors_enabled and self.link_state == "up":
+            alerts.append("Pioneer motors disabled although ENABLE 1 was sent: press the MOTORS button on "
+                          "the robot's panel (check the motor power switch and that the e-stop is released)")
+        volts = sip.battery_volts
+        if 0 < volts < self.low_battery:
+            alerts.append(f"Pioneer battery low: {volts:.1f} V (below {self.low_battery:.1f} V): charge or "
+                          "swap the battery (P2OS shuts down near 10.5 V)")
+        alerts_t = tuple(alerts)
+        if alerts_t != self._alerts:
+            for a in alerts_t:
+                if a not in self._alerts:
+                    log.warning("pioneer %s: %s", self.port, a)
+            for a in self._alerts:
+                if a not in alerts_t:
+                    log.info("pioneer %s: cleared: %s", self.port, a.split(":")[0])
+            self._alerts = alerts_t
 
     @property
     def counters(self) -> dict[str, int]:
@@ -284,7 +318,9 @@ class Pioneer:
             raise LinkLost(f"the Pioneer on {self.port} is {self.link_state}: command not sent")
 
     def _read(self) -> list[tuple[Packet, float]]:
-        """Whatever packets the next read completes, each stamped with the time its last byte arrived."""
+        """Whatever packets the next read completes, each stamped with the time its first byte left
+        the robot: the read's time minus the packet's transfer time at the baud (a 31-byte SIP is
+        32 ms at 9600 baud), on the host's ``time.monotonic()`` clock as the laser's scans are."""
         if self._closing.is_set():
             raise _Closing
         try:
@@ -296,7 +332,8 @@ class Pioneer:
         if not data:
             return []
         t = time.monotonic()
-        return [(p, t) for p in self._reader.feed(data)]
+        per_byte = 10.0 / (self._ser.baudrate or self.baudrate)  # 8N1: ten bits a byte
+        return [(p, t - (len(p.data) + 5) * per_byte) for p in self._reader.feed(data)]
 
     def _next_packet(self, timeout: float) -> Packet | None:
         deadline = time.monotonic() + timeout
@@ -430,7 +467,10 @@ class Pioneer:
     def _on_sip(self, pkt: Packet, t: float) -> None:
         sip = decode_sip(pkt.data)
         self._count["sips"] += 1
-        self._last_sip = t
+        self._last_sip = time.monotonic()
+        self._check_sip(sip)
+        if self._odometry is not None and t <= self._odometry.t:
+            t = self._odometry.t + 1e-6  # two SIPs completed by one read: keep the stamps increasing
         if self._seto_deadline is not None:
             # SIPs sent before the robot executed SETO still carry the old position; the first one
             # near the origin (or the deadline) starts the new frame.

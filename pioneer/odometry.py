@@ -38,7 +38,8 @@ def normalize_angle(a: float) -> float:
 
 @dataclass(frozen=True)
 class PioneerOdometry:
-    """One SIP as odometry. ``t``: host ``time.monotonic()`` (s) when the SIP's last byte was read.
+    """One SIP as odometry. ``t``: host ``time.monotonic()`` (s) when the SIP's first byte left the
+    robot (its arrival minus its transfer time at the baud); strictly increasing.
     ``x``, ``y`` (m), ``theta`` (rad, in (-π, π]): pose in the odometry frame. ``v`` (m/s), ``w``
     (rad/s): the robot's velocities; ``left``, ``right`` (m/s): wheel speeds. ``sip``: the packet."""
 

@@ -100,8 +100,8 @@ def test_no_answer_names_what_to_check(pty_pair):
 
 
 def test_missing_port_is_reported_with_the_port_name():
-    with pytest.raises(PortUnavailable, match=r"cannot open the Pioneer port: /dev/no-such-pioneer does not exist; "
-                       r"check that the USB adapter is plugged in"):
+    with pytest.raises(PortUnavailable, match=r"cannot open the Pioneer port: /dev/no-such-pioneer does not "
+                       r"exist; check that the USB adapter is plugged in"):
         Pioneer("/dev/no-such-pioneer")
 
 
@@ -276,3 +276,42 @@ def test_leaving_the_context_by_exception_stops_the_motors_and_closes(pty_pair, 
     assert not emu.motors_enabled
     assert _until(lambda: emu.wheel_speeds == (0.0, 0.0), 1.0)
     assert robot.link_state == "closed"
+
+
+# --- what the SIP says is wrong -------------------------------------------------------------------------
+
+
+def test_the_e_stop_and_a_low_battery_are_alerts_naming_the_remedy(robot, emu):
+    assert robot.alerts == ()
+    emu.estop_button = True
+    emu.battery = 10.7
+    assert _until(lambda: len(robot.alerts) == 2, 1.0), robot.alerts
+    estop, battery = robot.alerts
+    assert estop.startswith("Pioneer e-stop pressed") and "release the red STOP button" in estop
+    assert battery.startswith("Pioneer battery low: 10.7 V (below 11.0 V)") and "charge" in battery
+    emu.estop_button = False  # released: the motors stay off until enabled again
+    assert _until(lambda: robot.alerts[:1] != (estop,), 1.0)
+    assert robot.alerts[0].startswith("Pioneer motors disabled") and "MOTORS button" in robot.alerts[0]
+    emu.battery = 12.5
+    robot.close()
+
+
+def test_sip_stamps_are_the_send_time_and_strictly_increasing(robot, emu):
+    got = []
+    robot.on_odometry(lambda o: got.append((time.monotonic(), o.t)))
+    _settle(robot, 5)
+    stamps = [t for _, t in got]
+    assert all(b > a for a, b in itertools.pairwise(stamps))
+    # A SIP with n sonar readings is 30 + 3n bytes: at least 31 ms on the wire at 9600 baud.
+    assert all(arrived - t >= 0.031 for arrived, t in got)
+
+
+def test_a_robot_that_stops_answering_is_lost_within_a_second(pty_pair):
+    events = []
+    first = _emulator(pty_pair)
+    with _pioneer(pty_pair, on_link=lambda state, reason: events.append((time.monotonic(), state))):
+        silent = time.monotonic()
+        first.stop()
+        assert _until(lambda: any(s == "lost" for _, s in events), 1.0)
+        lost = next(t for t, s in events if s == "lost")
+        assert lost - silent < 1.0
