@@ -295,6 +295,8 @@ class Planner:
     def __init__(self, params: ExploreParams | None = None, memory: Memory | None = None) -> None:
         self.p = params or ExploreParams()
         self.memory = memory or Memory()
+        self._pending_key: tuple | None = None
+        self._pending: list[tuple[float, float]] = []
 
     # -- bookkeeping ---------------------------------------------------------------------------
     def looked_at(self, asr: int, point: tuple[float, float]) -> None:
@@ -328,19 +330,25 @@ class Planner:
 
     def pending_unknown(self, asr: ASR) -> list[tuple[float, float]]:
         """Midpoints (ASR frame) of the unknown runs of ``asr`` still to be looked at."""
-        seen = np.array(self.memory.looked.get(asr.id, []), dtype=float).reshape(-1, 2)
+        looked = self.memory.looked.get(asr.id, [])
+        # Called every control step: the answer only changes with the boundary or what was looked at.
+        key = (asr.id, id(asr.boundary), len(asr.boundary), tuple(asr.edges), len(looked))
+        if self._pending_key == key:
+            return list(self._pending)
+        seen = np.array(looked, dtype=float).reshape(-1, 2)
         out = []
         for m in unknown_regions(asr, self.p.min_unknown, self.p.region_length):
             if len(seen) and np.hypot(*(seen - m).T).min() < self.p.visit_radius:
                 continue
             out.append(m)
-        return out
+        self._pending_key, self._pending = key, out
+        return list(out)
 
-    def explored(self, view: MapView, asr: ASR, ex: Exit) -> bool:
+    def explored(self, view: MapView, asr: ASR, ex: Exit, edges: dict | None = None) -> bool:
         """Whether exit ``ex`` of ``asr`` needs no visit (see the module docstring)."""
         if ex.to is not None or self._failed(asr, ex):
             return True
-        edges = _edges(view)
+        edges = _edges(view) if edges is None else edges
         if (asr.id, ex.id) in edges:
             return True
         orig = view.asrs.get(asr.duplicate_of) if asr.duplicate_of is not None else None
@@ -354,9 +362,11 @@ class Planner:
                     return True
         return False
 
-    def unexplored_exits(self, view: MapView, asr: ASR) -> list[Exit]:
+    def unexplored_exits(self, view: MapView, asr: ASR, edges: dict | None = None) -> list[Exit]:
         """Unexplored exits of ``asr``, widest first."""
-        return sorted((e for e in asr.exits if not self.explored(view, asr, e)), key=lambda e: -e.width)
+        edges = _edges(view) if edges is None else edges
+        todo = [e for e in asr.exits if not self.explored(view, asr, e, edges)]
+        return sorted(todo, key=lambda e: -e.width)
 
     # -- the decision --------------------------------------------------------------------------
     def plan(self, view: MapView) -> Goal:
@@ -392,6 +402,7 @@ class Planner:
         """Shortest route (metres between global centres) from the current ASR to the nearest ASR
         with an unexplored exit: (ASR ids along it, the exit of the current ASR to take), or None."""
         edges = _edges(view, borrow=True)
+        plain = _edges(view)
         out: dict[int, list[tuple[str, int]]] = {}
         for (a, e), b in edges.items():
             if a in view.asrs and b in view.asrs and (a, e) not in self.memory.failed_exits \
@@ -407,7 +418,7 @@ class Planner:
             if a in done:
                 continue
             done.add(a)
-            if a != start and self.unexplored_exits(view, view.asrs[a]):
+            if a != start and self.unexplored_exits(view, view.asrs[a], plain):
                 hops = [a]
                 while hops[-1] != start:
                     hops.append(prev[hops[-1]][0])

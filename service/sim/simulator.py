@@ -154,13 +154,14 @@ class LockedMapper:
         with self.lock:
             return map_document(self.mapper)
 
-    def view(self) -> MapView:
-        """The explorer's view (call with :attr:`lock` held)."""
+    def view(self, copy: bool = False) -> MapView:
+        """The explorer's view (call with :attr:`lock` held); ``copy``: of the ASR table, to use
+        after releasing the lock (the records themselves are shared)."""
         m = self.mapper
         if self._dirty:
             self._dirty = False
             self._links = links_of(_links_of_mapper(m))
-        return MapView(m.current, m.pose, m.asrs, self._links)
+        return MapView(m.current, m.pose, dict(m.asrs) if copy else m.asrs, list(self._links))
 
 
 def _links_of_mapper(m: Any) -> list:
@@ -563,11 +564,16 @@ class StackSim:
             if self.explorer is not None:
                 pts = scan_points(np.asarray(scan.ranges, float), np.asarray(scan.angles, float),
                                   float(getattr(scan, "max_range", LMS_MAX_RANGE)), self.explorer.p)
-                with self.mapper.lock:
-                    if self.mapper.mapper.current is None:
-                        cmd = Command(0.0, 0.0, "waiting for the first ASR")
-                    else:
-                        cmd = self.explorer.step(self.mapper.view(), pts, now, stalled)
+                with self.mapper.lock:  # a snapshot: the mapper thread must not wait for the planning
+                    view = self.mapper.view(copy=True)
+                if view.current is None:
+                    cmd = Command(0.0, 0.0, "waiting for the first ASR")
+                else:
+                    try:
+                        cmd = self.explorer.step(view, pts, now, stalled)
+                    except Exception:  # an ASR changed under the snapshot: next scan, next try
+                        log.debug("explorer step failed on a changing map", exc_info=True)
+                        cmd = self.command
                 self.command = cmd
                 with contextlib.suppress(Exception):
                     _send_velocity(dev, cmd.v, cmd.w)
