@@ -424,8 +424,9 @@ class StackSim:
     """Emulators on ptys + :class:`service.pipeline.Service` + the explorer (see the module docstring).
 
     ``speed``: simulated seconds per wall second. ``state_dir``: where the service keeps its map
-    store (a temporary directory by default). ``zenoh_listen``: endpoints the service listens on
-    (empty: Zenoh's defaults for a peer, loopback-only scouting is not forced).
+    store (a temporary directory by default; a simulation always starts a new map). Zenoh: the
+    service's default ``[zenoh]`` configuration, keys under ``asrmap/<robot_name>/``, so
+    ``asrmap monitor --robot <robot_name>`` follows the run.
     """
 
     def __init__(self, world: World, params: SimParams | None = None, *, speed: float = 1.0,
