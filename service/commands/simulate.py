@@ -26,7 +26,8 @@ def add_arguments(p) -> None:
                    help=f"built-in world ({', '.join(builtin_worlds())}) or a world .json file "
                         "(default: lab)")
     p.add_argument("--explore", action=argparse.BooleanOptionalAction, default=True,
-                   help="explore autonomously (default); --no-explore keeps the robot still")
+                   help="explore autonomously (default); --no-explore keeps the robot still (for 60 s "
+                        "unless --duration)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="stop after S simulated seconds (default: when exploration is done)")
     p.add_argument("--fast", nargs="?", type=float, const=FAST, default=None, metavar="FACTOR",
