@@ -8,9 +8,10 @@ sent as the device's all-ones no-return code, and the beam count of the recordin
 CARMEN sweep stays 180 values; the reader derives the beam spacing from the count and the FOV).
 
 Timing: scan ``k`` (recorded at ``times[k]`` s) is due at host time ``to_wall(times[k])``; its
-telegram is written one transmission time (at the line's baud) after that, because the reader dates
-a telegram by its arrival minus that transmission time: the date it computes is then the recorded
-one on the same clock. ``to_wall`` returns None until playback starts (the device is silent).
+telegram is written one mirror sweep plus one transmission time (at the line's baud) after that,
+because the reader dates a scan's first ray by the telegram's arrival minus both: the date it
+computes is then the recorded one on the same clock. ``to_wall`` returns None until playback
+starts (the device is silent).
 With ``rate_limit`` (the default) telegrams never follow each other faster than the baud allows;
 a scan is skipped (``counters["scans_skipped"]``) only when the line is two or more scans
 behind, as a real device sends its newest scan when the line frees. ``rate_limit=False`` sends
@@ -25,7 +26,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from laser.emulator import _POLL_S, LMS2xxEmulator
-from laser.timing import b0_size, transmit_time
+from laser.timing import b0_size, sweep_time, transmit_time
 from laser.values import encode_b0, make_scan
 
 #: ``to_wall(t_recorded) -> host time.monotonic() seconds``, or None while playback has not started.
@@ -82,7 +83,7 @@ class PlaybackLMS2xx(LMS2xxEmulator):
     def _due(self, k: int) -> float | None:
         """Host time at which scan ``k``'s telegram may be written (its last byte 'arrives')."""
         wall = self.to_wall(float(self.times[k]))
-        return None if wall is None else wall + self._tx(k)
+        return None if wall is None else wall + sweep_time(self.fov, self.resolution) + self._tx(k)
 
     def _play(self, now: float) -> None:
         k = self.next_index

@@ -29,7 +29,7 @@ import serialport
 from laser import protocol as p
 from laser.errors import CHECKS, ConfigError, LaserError, LinkLost, ProtocolError
 from laser.telegram import FrameReader, Telegram, request
-from laser.timing import scan_period, transmit_time
+from laser.timing import scan_period, sweep_time, transmit_time
 from laser.values import LaserScan, decode_b0
 
 log = logging.getLogger(__name__)
@@ -132,7 +132,10 @@ class LMS2xx:
         self.last_error: Exception | None = None
         self._reset_first = reset
         self._framer = FrameReader()
-        self._stats = {"scans": 0, "bad_scans": 0, "link_lost": 0, "reboots": 0, "recoveries": 0}
+        self._stats = {"scans": 0, "bad_scans": 0, "link_lost": 0, "reboots": 0, "recoveries": 0,
+                       "stamps_corrected": 0}
+        self._sweep = sweep_time(fov, self.resolution)
+        self._last_stamp = -float("inf")
         self._power_on_seen = False
         self._scans: deque[LaserScan] = deque(maxlen=queue_size)
         self._cond = threading.Condition()
@@ -282,6 +285,13 @@ class LMS2xx:
             f"{b}: " + ("port refused the rate" if n < 0 else f"{n} bytes, no telegram")
             for b, n in heard.items()
         )
+        if heard.get(500000) == -1:
+            # An LMS left at 500000 by an earlier session only answers there until power-cycled.
+            raise LinkLost(
+                f"no LMS2xx answer on {self.port} at {'/'.join(str(b) for b in order if b != 500000)} baud, "
+                f"and the adapter cannot run at 500000 baud ({summary}): if the LMS was set to 500000, "
+                f"{serialport.unsupported_baud(self.port, 500000)}; otherwise {CHECKS}"
+            )
         raise LinkLost(
             f"no LMS2xx answer on {self.port}: expected reply A0 to '20 25' at {'/'.join(map(str, order))} "
             f"baud; received {summary}; {CHECKS}"
@@ -465,8 +475,14 @@ class LMS2xx:
         baud = self.baudrate
         for tg, after in found:
             if tg.command == p.VALUES:
-                # t = when the telegram's first byte left the device, from its last byte's arrival.
-                t = now - transmit_time(after + tg.size, baud)
+                # The first ray: the telegram's first byte left the device after the whole sweep.
+                t = now - transmit_time(after + tg.size, baud) - self._sweep
+                if t <= self._last_stamp:
+                    # Read-time jitter (a late read makes the next telegram look early): the stamps
+                    # must still increase, as the mapper interpolates odometry between them.
+                    self._stats["stamps_corrected"] += 1
+                    t = self._last_stamp + 1e-6
+                self._last_stamp = t
                 self._deliver(tg, t)
             elif tg.command == p.POWER_ON:
                 self._power_on_seen = True

@@ -63,8 +63,9 @@ def scan_angles(count: int, fov_deg: float, resolution_deg: float, offset_deg: f
 class LaserScan:
     """One LMS2xx scan, sensor frame, SI units.
 
-    - ``t``: host ``time.monotonic()`` seconds when the telegram's first byte went on the line,
-      i.e. the last byte's arrival minus its transmission time at the baud: about when the scan ended.
+    - ``t``: host ``time.monotonic()`` seconds of the scan's first ray (beam 0): the telegram's
+      last byte's arrival minus its transmission time at the baud, minus the mirror's sweep
+      (:func:`laser.timing.sweep_time`); the same clock as the Pioneer's odometry stamps.
     - ``ranges``: float32 metres per beam; no-return beams read :attr:`max_range` (see :attr:`no_return`).
     - ``angles``: float64 radians, -fov/2 .. +fov/2 counter-clockwise (value 0 on the right).
     - ``flags``: uint8 per beam, the value word's bits above the range (module docstring).
@@ -121,8 +122,13 @@ class LaserScan:
 
     @property
     def t_first_ray(self) -> float:
-        """Estimated host time of the first ray: :attr:`t` minus the mirror's sweep (interlacing included)."""
-        return self.t - sweep_time(self.fov_deg, self.resolution_deg)
+        """Host time of the first ray: :attr:`t` itself (kept for callers that name it)."""
+        return self.t
+
+    @property
+    def t_last_ray(self) -> float:
+        """Host time of the last ray: :attr:`t` plus the mirror's sweep (interlacing included)."""
+        return self.t + sweep_time(self.fov_deg, self.resolution_deg)
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, LaserScan):

@@ -12,6 +12,10 @@ stepped once per SIP cycle. The 2 s watchdog zeroes the setpoints when the clien
 while the session is open; motion resumes only on a new velocity command (a conservative reading of
 "resume again on receipt of a client packet"). The codec is the driver's (:mod:`pioneer.packet`,
 :mod:`pioneer.commands`, :mod:`pioneer.sip`).
+
+A pty carries bytes at once whatever its baud, but a real SIP reaches the host one transfer time
+(ten bits a byte at the line's baud, as the host set it on the pty) after the robot sampled it, and
+the driver dates it back by that much: each SIP is written that long after its sampling tick.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import logging
 import math
 import os
 import select
+import termios
 import threading
 import time
 from collections import Counter, deque
@@ -45,6 +50,7 @@ _POLL_S = 0.02  # longest wait of the robot loop: bounds stop() latency
 _OPEN_NAMES = {0: "PULSE", 1: "OPEN", 2: "CLOSE"}
 _SYNC_NAMES = {0: "SYNC0", 1: "SYNC1", 2: "SYNC2"}
 _KNOWN = {int(c) for c in Command}
+_BAUD = {getattr(termios, f"B{b}"): b for b in (9600, 19200, 38400, 57600, 115200)}
 # (transducer number, true pose) -> range in metres, or None for no echo (reported as max range).
 SonarSource = Callable[[int, Pose], "float | None"]
 
@@ -115,6 +121,7 @@ class PioneerEmulator:
         self._watchdog_tripped = False
         self._next_sonar = 0
         self._last_step = time.monotonic()
+        self._outbox: deque[tuple[float, bytes]] = deque()  # SIPs on the wire: (arrival time, bytes)
 
     # ---- lifecycle -------------------------------------------------------------------------------
     def start(self) -> PioneerEmulator:
@@ -197,7 +204,8 @@ class PioneerEmulator:
         while not self._stop.is_set():
             now = time.monotonic()
             try:
-                ready, _, _ = select.select([self.fd], [], [], max(0.0, min(next_tick - now, _POLL_S)))
+                wake = min(next_tick, self._outbox[0][0]) if self._outbox else next_tick
+                ready, _, _ = select.select([self.fd], [], [], max(0.0, min(wake - now, _POLL_S)))
                 data = os.read(self.fd, 4096) if ready else b""
             except OSError as exc:
                 if exc.errno not in (errno.EAGAIN, errno.EIO):  # EIO: no host has the pty open
@@ -212,10 +220,19 @@ class PioneerEmulator:
                     for pkt in packets:
                         self._handle(pkt, now)
             now = time.monotonic()
+            while self._outbox and self._outbox[0][0] <= now:
+                self._write(self._outbox.popleft()[1])
             if now >= next_tick:
                 with self._lock:
                     self._tick(now)
                 next_tick = max(next_tick + self.sip_cycle, now + self.sip_cycle / 2)
+
+    def _line_baud(self) -> int:
+        try:
+            speed = termios.tcgetattr(self.fd)[5]
+        except (OSError, termios.error):
+            return 9600
+        return _BAUD.get(speed, 9600)
 
     def _write(self, data: bytes) -> None:
         try:
@@ -235,12 +252,13 @@ class PioneerEmulator:
         self.body.step(now - self._last_step)
         self._last_step = now
         if self.state == "open":
-            self._write(frame(encode_sip(self.sip())))
+            out = frame(encode_sip(self.sip()))
             self._counters["sips_sent"] += 1
             if self.encoder_stream:
                 b, conv = self.body, self.params.dist_conv
                 enc = EncoderCounts(round(b.left_travel * 1000 / conv), round(b.right_travel * 1000 / conv))
-                self._write(frame(encode_encoder(enc)))
+                out += frame(encode_encoder(enc))
+            self._outbox.append((now + len(out) * 10.0 / self._line_baud(), out))
 
     # ---- what the robot says ---------------------------------------------------------------------
     def sip(self) -> SIP:

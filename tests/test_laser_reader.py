@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import time
 
 import numpy as np
@@ -14,7 +15,7 @@ from laser.errors import ConfigError, LinkLost
 from laser.probe import emulated_laser, probe
 from laser.reader import LMS2xx, Timeouts
 from laser.sources import constant, fixed
-from laser.timing import transmit_time
+from laser.timing import sweep_time, transmit_time
 from laser.values import encode_b0, make_scan
 from service.ptys import open_pty
 
@@ -95,14 +96,19 @@ def test_cm_units_reach_81_m_and_the_device_config_block_is_edited_not_replaced(
         emu.stop()
 
 
-def test_timestamp_is_the_last_byte_minus_the_transmission_time(pty_pair):
+def test_timestamp_is_the_first_ray_last_byte_minus_transmission_and_sweep(pty_pair):
     with _emulator(pty_pair, baud=38400), LMS2xx(pty_pair.path, timeouts=FAST) as lms:
         before = time.monotonic()
         scan = _scans(lms, 1)[0]
         after = time.monotonic()
-        # A pty delivers at once, so the correction is the whole 372-byte telegram at 38400 baud.
-        assert before - transmit_time(372, 38400) - 0.05 <= scan.t <= after - transmit_time(372, 38400)
-        assert scan.t_first_ray < scan.t
+        # A pty delivers at once, so the correction is the whole 372-byte telegram at 38400 baud
+        # plus half a mirror turn (180 deg at 75 Hz: 6.7 ms) back to the first ray.
+        back = transmit_time(372, 38400) + sweep_time(180, 1.0)
+        assert sweep_time(180, 1.0) == pytest.approx(1 / 150)
+        assert before - back - 0.05 <= scan.t <= after - back
+        assert scan.t_first_ray == scan.t and scan.t_last_ray == pytest.approx(scan.t + 1 / 150)
+        stamps = [s.t for s in _scans(lms, 10)]
+        assert all(b > a for a, b in itertools.pairwise([scan.t, *stamps]))
 
 
 def test_iterator_and_callback_both_deliver_scans(pty_pair):

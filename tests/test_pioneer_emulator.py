@@ -178,6 +178,11 @@ def test_aria_style_vel2_with_negative_left_wheel_is_sent_as_0x1b(pty_pair, clie
         assert emu.received[-1][1:] == ("VEL2", -(0x10000 - 0xFB05))
 
 
+# A SIP reaches the host one transfer time after the robot sampled it (32 ms at 9600 baud): one
+# sampled before a command may still arrive after it.
+IN_FLIGHT = 0.08  # s: one transfer plus thread scheduling on a busy machine
+
+
 def _open_session(client, *extra: bytes) -> None:
     client.handshake()
     client.send(command(Command.OPEN, 1) + command(Command.ENABLE, 1) + b"".join(extra))
@@ -198,6 +203,7 @@ def test_motors_stay_disabled_until_enable_1(pty_pair, client):
         assert not client.sips(0.15)[-1].motors_enabled
         assert emu.wheel_speeds == (0.0, 0.0)
         client.send(command(Command.ENABLE, 1))  # P2OS resumes the last setpoint on ENABLE
+        client.read_for(IN_FLIGHT)
         assert client.sips(0.15)[-1].left_vel == 300
 
 
@@ -220,11 +226,13 @@ def test_stop_decelerates_and_e_stop_halts_at_once(pty_pair, client):
         _open_session(client, command(Command.VEL, 400))
         client.read_for(0.15)
         client.send(command(Command.STOP))
+        client.read_for(IN_FLIGHT)
         first = client.sips(0.12)[0]
         assert 0 < first.left_vel < 400
         client.send(command(Command.VEL, 400))
         client.read_for(0.15)
         client.send(command(Command.E_STOP))
+        client.read_for(IN_FLIGHT)
         assert client.sips(0.12)[0].left_vel == 0
 
 
