@@ -109,6 +109,8 @@ class ExploreParams:
     recovery_distance: float = 0.25
     recovery_speed: float = 0.15
     recovery_turn: float = 1.2
+    #: How many times exits that failed are all forgotten and tried again before exploration ends.
+    retries: int = 2
     #: m. Exits of a duplicate and of its matched ASR within this distance (global frame) are one exit.
     duplicate_radius: float = 1.0
     #: m, robot frame. Robot front (from the turning centre), half width, laser position.
@@ -200,6 +202,7 @@ class Memory:
     looked: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
     failed_exits: set[tuple[int, str]] = field(default_factory=set)
     failed_at: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
+    retries: int = 0
 
 
 def unknown_runs(asr: ASR) -> list[tuple[np.ndarray, float]]:
@@ -384,6 +387,15 @@ class Planner:
             return self._through(view, asr, exits[0], "exit", free, (asr.id,))
         path = self.backtrack_path(view)
         if path is None:
+            if self.memory.failed_exits and self.memory.retries < self.p.retries:
+                # Nothing left but what failed: failures are often passing (a pose estimate that
+                # recovered, a jam), so forget them and try again, a bounded number of times.
+                self.memory.retries += 1
+                log.info("exploration: retrying %d exits that failed (round %d of %d)",
+                         len(self.memory.failed_exits), self.memory.retries, self.p.retries)
+                self.memory.failed_exits.clear()
+                self.memory.failed_at.clear()
+                return self.plan(view)
             return Goal("done", asr.id)
         hops, exit_id = path
         ex = exit_of(view, asr, exit_id)

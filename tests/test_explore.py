@@ -168,10 +168,16 @@ def test_no_asr_yet_waits():
     assert Explorer().step(MapView(None, (0, 0, 0), {}), np.zeros((0, 2)), 0.0).status.startswith("waiting")
 
 
-def test_a_failed_exit_is_not_tried_again():
-    a = room(1, 0, 0, 6, 4, edges=EAST_EXIT, exits=[door(1, 0, (6, 1), (6, 3))])
-    planner = Planner()
+def test_a_failed_exit_waits_for_the_rest_and_is_retried_a_bounded_number_of_times():
+    exits = [door(1, 0, (6, 1), (6, 3)), door(1, 1, (2, 4), (3, 4))]
+    a = room(1, 0, 0, 6, 4, edges=("surface", "exit", "exit", "surface"), exits=exits)
+    planner = Planner(ExploreParams(retries=1))
+    planner.failed(1, "1/0", (6.0, 2.0))
+    assert planner.plan(view([a], 1)).exit == "1/1"  # the other one first, though narrower
+    planner.failed(1, "1/1", (2.5, 4.0))
+    assert planner.plan(view([a], 1)).exit == "1/0"  # nothing else left: one more round
     planner.failed(1, "1/0")
+    planner.failed(1, "1/1")
     assert planner.plan(view([a], 1)).kind == "done"
 
 
