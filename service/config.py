@@ -204,6 +204,10 @@ class WatchdogConfig:
                                    default=0.5)
     reconnect_interval: float = _key(_number(0.05, 60.0), "pause between reconnection attempts (s)",
                                      default=1.0)
+    startup_timeout: float = _key(_number(0.0, 3600.0), "the Pioneer and the laser not both up this long "
+                                  "after start: exit with status 1 naming what is missing, so systemd "
+                                  "restarts the service (s; 0 waits for ever; keep below TimeoutStartSec)",
+                                  default=90.0)
     mapper_stall: float = _key(_number(1.0, 3600.0), "the mapper busy on one reading this long stops the "
                                "systemd watchdog pings, so systemd restarts the service (s)", default=30.0)
 

@@ -35,6 +35,7 @@ from mapper.se2 import Pose, compose, interpolate, inverse
 from mapper.types import Odometry, Scan
 from service.bus import Bus, CommandRefused
 from service.config import Config
+from service.motion import MotionGate, stop_on_thread_crash
 from service.notify import Notifier
 from service.store import SCHEMA as MAP_SCHEMA
 from service.store import MapStore
@@ -395,6 +396,9 @@ class MapperWorker:
         self.busy_since: float | None = None
         self.mapped = Rate()
         self.counters = {"scans_mapped": 0, "scans_without_odometry": 0, "events": 0, "mapper_errors": 0}
+        #: (wall s, mapper-thread CPU s, scan stamp s, processing s, latency s) per mapped scan, for
+        #: the status's real-time factor, CPU share and end-to-end latency (see :meth:`timing`).
+        self.timings: deque[tuple[float, float, float, float, float]] = deque(maxlen=50)
         self.document: dict[str, Any] = self._stamp(document_of(mapper))
         self.last_pose: dict[str, Any] | None = None
         self.exploration: Exploration | None = None
@@ -423,6 +427,10 @@ class MapperWorker:
             self.busy_since = time.monotonic()
             try:
                 self.process(scan)
+                done = time.monotonic()
+                # Latency: the scan's first ray to its map update committed and published.
+                self.timings.append((done, time.thread_time(), float(scan.t), done - self.busy_since,
+                                     done - float(scan.t)))
             except Exception:  # one bad reading must not end the mapping
                 self.counters["mapper_errors"] += 1
                 log.exception("the mapper failed on the scan at t=%.3f", getattr(scan, "t", math.nan))
@@ -456,6 +464,20 @@ class MapperWorker:
         if self.exploration is not None and self.exploration.active:
             self.exploration.step(self.mapper, self.document, scan)
         return events
+
+    def timing(self) -> dict[str, float | None]:
+        """Over the last scans mapped: ``latency`` (s, first ray to published; mean and max),
+        ``realtime_factor`` (seconds of scans per second of mapping: above 1 keeps up) and
+        ``cpu_share`` (the mapper thread's CPU seconds per wall second: 1.0 is one core)."""
+        t = list(self.timings)
+        if len(t) < 2:
+            return {"latency": None, "latency_max": None, "realtime_factor": None, "cpu_share": None}
+        busy = sum(r[3] for r in t[1:])
+        wall = t[-1][0] - t[0][0]
+        return {"latency": round(sum(r[4] for r in t) / len(t), 4),
+                "latency_max": round(max(r[4] for r in t), 4),
+                "realtime_factor": round((t[-1][2] - t[0][2]) / busy, 2) if busy > 0 else None,
+                "cpu_share": round((t[-1][1] - t[0][1]) / wall, 3) if wall > 0 else None}
 
     def commit_and_publish(self, events: list[Any]) -> None:
         """Store first, then Zenoh: a subscriber never sees what a crash could lose."""
@@ -544,6 +566,7 @@ class Service:
         self.started = time.monotonic()
         self.battery: float | None = None
         self._blind_stop_sent = False
+        self._ready = False
         self.bus: Bus | None = None
         self.worker: MapperWorker | None = None
         wd = cfg.watchdog
@@ -551,7 +574,10 @@ class Service:
                             wd.odometry_timeout, wd.reconnect_interval, self._on_link_change)
         self.laser = Link("laser", lambda: self._open_laser(cfg), self._attach_laser,
                           wd.scan_timeout, wd.reconnect_interval, self._on_link_change)
-        self.exploration = Exploration(self._drive, self._stalled)
+        # Every velocity goes through the gate: it expires 0.5 s after its source's last command.
+        self.motion = MotionGate(self._drive, self._halt, max_age=0.5)
+        self.exploration = Exploration(lambda v, w: self.motion.command(v, w, "explore"), self._stalled)
+        self.skew: deque[float] = deque(maxlen=50)  # s: scan first ray minus the newest SIP stamp
 
     # --- device callbacks (driver threads): record and return --------------------------------------
 
@@ -570,6 +596,9 @@ class Service:
     def _attach_laser(self, dev: Any) -> None:
         def on_scan(scan: Any) -> None:
             if self.laser.touch(dev):
+                newest = self.odometry.latest()
+                if newest is not None:
+                    self.skew.append(float(scan.t) - newest[0])
                 self.scans.put(scan)
 
         dev.on_scan(on_scan)
@@ -588,18 +617,16 @@ class Service:
     # --- safety and commands -------------------------------------------------------------------------
 
     def stop_robot(self, why: str) -> bool:
-        """Command zero velocity now; False when the Pioneer is not connected (P2OS stops its motors
-        by itself when the host falls silent)."""
-        dev = self.pioneer.device
-        if dev is None:
-            return False
-        try:
-            dev.stop()
+        """Command zero velocity now (``why`` is kept as the last stop's reason); False when the
+        Pioneer is not connected (P2OS stops its motors by itself when the host falls silent)."""
+        ok = self.motion.stop(why)
+        if ok:
             log.info("robot stopped: %s", why)
-            return True
-        except Exception as exc:
-            log.error("could not stop the robot (%s): %s", why, exc)
-            return False
+        return ok
+
+    def _halt(self) -> bool:
+        dev = self.pioneer.device
+        return dev is not None and dev.stop() is not False
 
     def _drive(self, v: float, w: float) -> None:
         dev = self.pioneer.device
@@ -647,9 +674,45 @@ class Service:
             "asrs": len(w.document.get("asrs", ())) if w else 0,
             "explore": {"active": self.exploration.active, "status": self.exploration.status},
             "bus": dict(self.bus.counters) if self.bus else {},
+            "motors": self._motors(),
+            "timing": {**(w.timing() if w else {}), **self._skew()},
+            "last_stop": None if self.motion.last_stop is None else {
+                "t": round(self.motion.last_stop[0], 3), "reason": self.motion.last_stop[1]},
+            "waiting_for": self.waiting_for(),
         }
 
+    def _motors(self) -> dict[str, Any]:
+        """The Pioneer's motors as its latest SIP reports them, and the driver's alerts (e-stop,
+        motors disabled, battery low, each with its remedy)."""
+        dev = self.pioneer.device
+        sip = getattr(getattr(dev, "odometry", None), "sip", None)
+        return {"enabled": None if sip is None else bool(sip.motors_enabled),
+                "e_stop": None if sip is None else bool(sip.e_stop),
+                "alerts": list(getattr(dev, "alerts", ()) or ())}
+
+    def _skew(self) -> dict[str, float | None]:
+        """Scan first-ray stamp minus the newest SIP stamp when the scan arrived (s): about half a
+        SIP cycle on average when both clocks agree; far beyond 0.1 s means a stamp is wrong."""
+        s = list(self.skew)
+        if not s:
+            return {"skew": None, "skew_max": None}
+        return {"skew": round(sum(s) / len(s), 4), "skew_max": round(max(s, key=abs), 4)}
+
+    def waiting_for(self) -> str | None:
+        """What the service still waits for before it can map (None when both devices are up)."""
+        down = [link for link in (self.pioneer, self.laser) if link.state != "ok"]
+        if not down:
+            return None
+        port = {"pioneer": self.cfg.pioneer.port, "laser": self.cfg.laser.port}
+        return "; ".join(f"the {link.name} on {port[link.name]}"
+                         + (f" ({link.reason})" if link.reason else "") for link in down)
+
     def _status_text(self) -> str:
+        waiting = self.waiting_for()
+        if waiting is not None and not self._ready:
+            budget = self.cfg.watchdog.startup_timeout
+            waited = time.monotonic() - self.started
+            return f"waiting for {waiting}" + (f" ({waited:.0f} s of {budget:.0f} s)" if budget else "")
         return (f"pioneer {self.pioneer.state}, laser {self.laser.state}, "
                 f"{len(self.worker.document.get('asrs', ())) if self.worker else 0} ASRs, "
                 f"{self.scans.dropped} scans dropped")
@@ -683,25 +746,36 @@ class Service:
             raise
         self.worker.bus = self.bus
         self.worker.exploration = self.exploration
+        restore = stop_on_thread_crash(self.stop_robot)
         try:
+            self.motion.start()
             self.pioneer.start()
             self.laser.start()
             self.worker.start()
-            self._loop(stop)
+            return self._loop(stop)
         finally:
-            self._shutdown(store)
-        return 0
+            try:
+                self._shutdown(store)
+            finally:
+                restore()
 
-    def _loop(self, stop: threading.Event) -> None:
+    def _loop(self, stop: threading.Event) -> int:
+        """The main loop; returns the exit status: 0 when stopped, 1 when the devices were not both
+        up within ``watchdog.startup_timeout`` (systemd's Restart=on-failure then tries again)."""
         cfg, n = self.cfg, self.notifier
-        ready = False
         interval = n.watchdog_interval
         next_ping = next_status = time.monotonic()
-        n.status("waiting for the Pioneer and the laser")
+        n.status("waiting for the Pioneer and the laser")  # then every status period: which, and why
         while not stop.wait(0.02):
             now = time.monotonic()
-            if not ready and self.pioneer.state == "ok" and self.laser.state == "ok":
-                ready = True
+            budget = cfg.watchdog.startup_timeout
+            if not self._ready and budget and now - self.started > budget:
+                log.error("gave up after %.0f s (watchdog.startup_timeout) waiting for %s", budget,
+                          self.waiting_for())
+                n.status(f"gave up waiting for {self.waiting_for()}")
+                return 1
+            if not self._ready and self.pioneer.state == "ok" and self.laser.state == "ok":
+                self._ready = True
                 n.ready(self._status_text())
                 log.info("ready: mapping as %s", cfg.robot.name)
             if self.laser.state != "ok" and self.pioneer.state == "ok":
@@ -721,13 +795,14 @@ class Service:
                 if stalled:
                     log.error("the mapper has been busy for %.1f s: no watchdog pings", now - busy)
                 n.status(self._status_text())
+        return 0
 
     def _shutdown(self, store: MapStore) -> None:
         """Motors first, then the laser's output, then Zenoh; everything bounded (< 2 s)."""
         log.info("stopping")
         self.notifier.stopping("stopping")
         self.exploration.stop("shutting down")
-        self.stop_robot("shutting down")
+        self.motion.close("shutting down")  # zero velocity, and no gate thread left to send more
         self.laser.stop(None)
         self.pioneer.stop(None)
         self.laser.join(1.2)
