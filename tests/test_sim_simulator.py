@@ -61,7 +61,6 @@ def test_a_short_direct_run_explores_without_touching_anything():
     assert s.sim_time == pytest.approx(60.0, abs=0.2)
     assert s.contacts == 0
     assert s.distance > 3.0 and s.asrs >= 1
-    assert s.realtime_factor > 10.0
     assert "world office" in s.lines()[0]
 
 
@@ -71,7 +70,6 @@ def test_the_full_stack_maps_a_world_through_ptys_drivers_and_the_service():
     assert s.scans > 20
     assert s.distance > 0.5 and s.contacts == 0
     assert s.asrs >= 1 and sim.document["asrs"]
-    assert s.realtime_factor > 4.0
 
 
 def test_asrmap_simulate_direct_writes_the_map_and_a_picture(tmp_path, capsys):
