@@ -197,14 +197,35 @@ def status_line(st: dict[str, Any]) -> str:
     parts = []
     for dev in ("pioneer", "laser"):
         d = st.get(dev) or {}
-        parts.append(f"{dev}={d.get('link', '?')}")
+        faults = f"({d['faults']} faults)" if d.get("faults") else ""
+        parts.append(f"{dev}={d.get('link', '?')}{faults}")
     rates = st.get("rates") or {}
     parts += [f"{k}={_fmt(v)}/s" for k, v in rates.items()]
+    timing = st.get("timing") or {}
+    if timing.get("latency") is not None:
+        parts.append(f"latency={timing['latency'] * 1000:.0f} ms")
+    if timing.get("realtime_factor") is not None:
+        parts.append(f"rtf={_fmt(timing['realtime_factor'])}")
+    if timing.get("cpu_share") is not None:
+        parts.append(f"cpu={timing['cpu_share'] * 100:.0f}%")
+    if timing.get("skew") is not None:
+        parts.append(f"skew={timing['skew'] * 1000:.0f} ms")
     if st.get("battery") is not None:
         parts.append(f"battery={_fmt(st['battery'])} V")
+    motors = st.get("motors") or {}
+    if motors.get("e_stop"):
+        parts.append("E-STOP")
+    elif motors.get("enabled") is False:
+        parts.append("motors=off")
     parts.append(f"dropped_scans={st.get('dropped_scans', 0)}")
     if "asrs" in st:
         parts.append(f"asrs={st['asrs']}")
+    if st.get("waiting_for"):
+        parts.append(f"waiting for {st['waiting_for']}")
+    stop = st.get("last_stop") or {}
+    if stop.get("reason"):
+        parts.append(f"last stop: {stop['reason']}")
+    parts += [f"ALERT {a}" for a in motors.get("alerts") or ()]
     return " ".join(parts)
 
 

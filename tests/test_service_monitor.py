@@ -54,6 +54,16 @@ def test_events_and_asr_updates_reach_the_view():
         assert [a["id"] for a in mon.robots["r1"].doc["asrs"]] == [1, 2, 3, 4]
 
 
+def test_status_line_shows_timing_motors_the_last_stop_and_alerts():
+    st = {"pioneer": {"link": "ok"}, "laser": {"link": "fault", "faults": 2}, "rates": {"scans": 10.0},
+          "timing": {"latency": 0.0421, "realtime_factor": 7.5, "cpu_share": 0.134, "skew": 0.051},
+          "battery": 10.6, "motors": {"enabled": False, "e_stop": True, "alerts": ["e-stop pressed: x"]},
+          "dropped_scans": 0, "last_stop": {"t": 1.0, "reason": "the laser is blind"}}
+    assert status_line(st) == (
+        "pioneer=ok laser=fault(2 faults) scans=10.00/s latency=42 ms rtf=7.50 cpu=13% skew=51 ms "
+        "battery=10.60 V E-STOP dropped_scans=0 last stop: the laser is blind ALERT e-stop pressed: x")
+
+
 def test_status_line_names_both_links_rates_battery_and_drops():
     st = {"pioneer": {"link": "ok"}, "laser": {"link": "fault"}, "rates": {"scans": 9.96}, "battery": 12.4,
           "dropped_scans": 3}
