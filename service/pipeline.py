@@ -159,7 +159,8 @@ class Rate:
 class Link:
     """Keeps one device open: ``open_device()`` builds the driver, ``attach(device)`` hooks its
     callbacks (which call :meth:`touch`). No data for ``stale_after`` seconds (or an open that
-    fails) is a fault: the device is closed and reopened every ``retry`` seconds until it answers.
+    fails) is a fault: the device is closed and reopened after ``retry`` seconds, doubling after
+    each failed open up to 2 s, until it answers.
 
     ``on_change(name, state, reason)`` runs on this link's thread at ``fault`` and at ``recovered``;
     states: ``connecting`` (never up yet), ``ok``, ``fault``.
@@ -209,13 +210,18 @@ class Link:
             log.info("%s: connected", self.name)
 
     def _run(self) -> None:
+        failures = 0
         while not self._stop.is_set():
             try:
                 dev = self._open()
             except Exception as exc:  # every failure to open is a fault to report, then retry
                 self._set("fault", f"cannot open: {exc}")
-                self._stop.wait(self.retry)
+                # Back off (doubling, at most 2 s): a device that is gone for minutes is not
+                # hammered, and one that returns is found again within 2 s.
+                self._stop.wait(min(self.retry * 2 ** failures, max(self.retry, 2.0)))
+                failures += 1
                 continue
+            failures = 0
             self._last = time.monotonic()
             self.device = dev
             try:
