@@ -42,6 +42,8 @@ from pioneer.sip import EncoderCounts, decode_config, decode_encoder, decode_sip
 
 log = logging.getLogger(__name__)
 
+P2OS_BAUDS = (9600, 19200, 38400, 57600, 115200)  # HOSTBAUD codes 0-4 (spec §1.9)
+
 
 @dataclass(frozen=True)
 class Timeouts:
@@ -406,10 +408,44 @@ class Pioneer:
                     f"({c['bad_checksums']} bad checksums): probably the wrong baud")
         else:
             seen = "nothing arrived"
+        others = [b for b in P2OS_BAUDS if b != self.baudrate]
+        found = self._autobaud(others)
+        if found is not None:
+            return LinkLost(
+                f"no P2OS robot answered on {self.port} at {self.baudrate} baud, but one answered SYNC0 at "
+                f"{found} baud: set the baud to {found} (pioneer.baudrate in the config)")
         return LinkLost(
             f"no P2OS robot answered on {self.port} at {self.baudrate} baud: expected the SYNC echo "
-            f"(fa fb 03 00 00 00) after {attempts} attempts, {seen}; {CHECKS}"
+            f"(fa fb 03 00 00 00) after {attempts} attempts, {seen}; nor at any other P2OS baud "
+            f"({', '.join(map(str, others))}); {CHECKS}"
         )
+
+    def _autobaud(self, bauds: list[int]) -> int | None:
+        """The first of ``bauds`` at which the robot echoes SYNC0 (one try each), or None; the port
+        is left at :attr:`baudrate`."""
+        try:
+            for baud in bauds:
+                try:
+                    self._ser.baudrate = baud
+                except (ValueError, serial.SerialException, OSError):
+                    continue
+                self._flush_input()
+                self._send(command(0))
+                reply = self._next_packet(min(0.3, self.timeouts.sync_reply))
+                if reply is not None and reply.type == 0:
+                    log.warning("pioneer %s: the robot answers at %d baud, not %d", self.port, baud,
+                                self.baudrate)
+                    self._send(command(Command.CLOSE))  # leave it waiting for a client, as found
+                    return baud
+        except (PioneerError, serial.SerialException, OSError):
+            pass
+        finally:
+            try:
+                self._ser.baudrate = self.baudrate
+            except (ValueError, serial.SerialException, OSError):
+                pass
+            self._flush_input()
+        return None
 
     def _session(self) -> None:
         """Handshake, OPEN, zero velocity, ENABLE, (CONFIG), first SIP; raises when it fails."""

@@ -68,6 +68,8 @@ class PioneerEmulator:
     - ``battery``: volts, settable; ``estop_button``: the red STOP button, settable.
     - ``sip_cycle``, ``watchdog``: seconds (defaults from ``params``; shorten them in tests).
     - ``answer_config``: reply to CONFIG (its ResetBaud is 0, so ARIA keeps 9600 baud).
+    - ``baud``: the host-port rate the robot listens at; bytes the host sends at another rate (as
+      set on the pty) are unintelligible and dropped. None (default): any rate.
     """
 
     def __init__(
@@ -86,6 +88,7 @@ class PioneerEmulator:
         sip_cycle: float | None = None,
         watchdog: float | None = None,
         answer_config: bool = True,
+        baud: int | None = None,
     ) -> None:
         self.fd = fd
         self.params = params
@@ -97,6 +100,7 @@ class PioneerEmulator:
         self.sip_cycle = params.sip_cycle if sip_cycle is None else sip_cycle
         self.watchdog = params.watchdog if watchdog is None else watchdog
         self.answer_config = answer_config
+        self.baud = baud
         self.state = "waiting"
         self.sonar_on = True  # P2OS fires its sonars from OPEN on (ROS-p2os turns them off at once)
         self.encoder_stream = False
@@ -213,6 +217,9 @@ class PioneerEmulator:
                     return
                 data = b""
                 time.sleep(_POLL_S)
+            if data and self.baud is not None and self._line_baud() != self.baud:
+                self._counters["bytes_lost"] += len(data)  # framing errors at the wrong rate
+                data = b""
             if data:
                 packets = self._reader.feed(data)
                 now = time.monotonic()

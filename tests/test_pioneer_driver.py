@@ -315,3 +315,20 @@ def test_a_robot_that_stops_answering_is_lost_within_a_second(pty_pair):
         assert _until(lambda: any(s == "lost" for _, s in events), 1.0)
         lost = next(t for t, s in events if s == "lost")
         assert lost - silent < 1.0
+
+
+def test_a_robot_at_another_baud_is_found_and_named(pty_pair):
+    emu = _emulator(pty_pair, baud=38400)
+    try:
+        with pytest.raises(LinkLost, match=r"no P2OS robot answered on .* at 9600 baud, but one answered "
+                                           r"SYNC0 at 38400 baud: set the baud to 38400"):
+            Pioneer(pty_pair.path, params=QUICK, timeouts=Timeouts(sync_reply=0.05, sync_attempts=3))
+        with _pioneer(pty_pair, baudrate=38400) as robot:
+            assert robot.link_state == "up"
+    finally:
+        emu.stop()
+
+
+def test_no_answer_at_any_baud_lists_the_bauds_tried(pty_pair):
+    with pytest.raises(LinkLost, match=r"nor at any other P2OS baud \(19200, 38400, 57600, 115200\)"):
+        Pioneer(pty_pair.path, timeouts=Timeouts(sync_reply=0.05, sync_attempts=3))
