@@ -23,7 +23,8 @@ def test_probe_of_a_missing_port_is_one_line_saying_what_to_check(capsys):
     assert main(["probe", "pioneer", "--port", "/dev/no-such-pioneer"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1
-    assert err[0].startswith("asrmap probe: cannot open the Pioneer port: /dev/no-such-pioneer does not exist")
+    assert err[0].startswith("asrmap probe: cannot open the Pioneer port: /dev/no-such-pioneer does not "
+                             "exist")
     assert "plugged in" in err[0]
 
 
