@@ -24,7 +24,7 @@ import numpy as np
 
 from pioneer.odometry import normalize_angle
 from pioneer.params import P2DX, RobotParams
-from pioneer.physics import Pose
+from pioneer.physics import Pose, Setpoints
 
 _MAX_WHEEL = 32.0  # m/s: below the int16 mm/s of a SIP's wheel velocity fields
 
@@ -83,7 +83,7 @@ class PoseTrack:
         return (dx * math.cos(mid) + dy * math.sin(mid)) / dt, dth / dt
 
 
-class PlaybackBody:
+class PlaybackBody(Setpoints):
     """The :class:`pioneer.physics.Body` of a recorded robot: its odometry pose is ``track`` at
     ``clock()`` (module docstring). ``true_pose`` is the same pose (a log has no other truth here).
 
@@ -92,23 +92,14 @@ class PlaybackBody:
     """
 
     def __init__(self, track: PoseTrack, clock: Callable[[], float], params: RobotParams = P2DX) -> None:
+        super().__init__(params)
         self.track = track
         self.clock = clock
-        self.params = params
         self.odometry_pose: Pose = track.at(track.start)
         self.true_pose: Pose = self.odometry_pose
         self.left_speed = self.right_speed = 0.0
         self.left_travel = self.right_travel = 0.0
         self.left_stall = self.right_stall = False
-        self.motors_enabled = False
-        self.v_cmd = self.w_cmd = 0.0
-        self.heading_target: float | None = None
-        self.max_v = params.max_velocity / 1000.0
-        self.max_w = math.radians(params.max_rvelocity)
-        self.accel = params.trans_accel / 1000.0
-        self.decel = params.trans_decel / 1000.0
-        self.rot_accel = math.radians(params.rot_accel)
-        self.rot_decel = math.radians(params.rot_decel)
         self._offset: Pose | None = None  # SETO: the pose that became (0, 0, 0)
 
     # --- what the emulator calls once per SIP cycle ---------------------------------------------
@@ -127,28 +118,7 @@ class PlaybackBody:
         self.true_pose = pose
         self.odometry_pose = pose if self._offset is None else _relative(self._offset, pose)
 
-    # --- commands: remembered, never acted on ---------------------------------------------------
-    def set_velocity(self, v: float) -> None:
-        self.v_cmd = max(-self.max_v, min(self.max_v, v))
-
-    def set_rotation(self, w: float) -> None:
-        self.heading_target = None
-        self.w_cmd = max(-self.max_w, min(self.max_w, w))
-
-    def set_wheels(self, left: float, right: float) -> None:
-        self.set_velocity((left + right) / 2.0)
-        self.set_rotation((right - left) / self.params.wheel_base)
-
-    def set_heading(self, theta: float) -> None:
-        self.heading_target = normalize_angle(theta)
-
-    def stop(self) -> None:
-        self.v_cmd = self.w_cmd = 0.0
-        self.heading_target = None
-
-    def e_stop(self) -> None:
-        self.stop()
-
+    # --- commands: the Setpoints base remembers them; a recording never acts on them ---------
     def reset_odometry(self) -> None:
         self._offset = self.true_pose
         self.odometry_pose = (0.0, 0.0, 0.0)
