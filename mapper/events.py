@@ -67,34 +67,35 @@ class ExitCrossed(Event):
 
 
 @dataclass(frozen=True, slots=True)
-class CycleDetected(Event):
-    """ASR ``asr`` matched the earlier ASR ``matches``: a cycle closed (``accepted`` True).
+class CycleDecision(Event):
+    """A cycle check's verdict on ASR ``asr`` against the earlier ASR ``matches``.
 
     ``centre``/``match_centre``: both centres in the global frame (m); ``iou``: overlap of the two
     global polygons; ``reason``: which rule decided (``centre-crosscheck``, ``hindsight``, ...).
     """
 
-    kind: ClassVar[str] = "cycle_detected"
     asr: int
     matches: int
     centre: tuple[float, float]
     match_centre: tuple[float, float]
     iou: float
     reason: str
+    accepted: bool
+
+
+@dataclass(frozen=True, slots=True)
+class CycleDetected(CycleDecision):
+    """A cycle closed: ``asr`` was accepted as a revisit of ``matches``."""
+
+    kind: ClassVar[str] = "cycle_detected"
     accepted: bool = True
 
 
 @dataclass(frozen=True, slots=True)
-class CycleRejected(Event):
+class CycleRejected(CycleDecision):
     """A candidate match of ``asr`` with ``matches`` that was rejected, and why (``reason``)."""
 
     kind: ClassVar[str] = "cycle_rejected"
-    asr: int
-    matches: int
-    centre: tuple[float, float]
-    match_centre: tuple[float, float]
-    iou: float
-    reason: str
     accepted: bool = False
 
 
