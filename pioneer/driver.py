@@ -321,8 +321,9 @@ class Pioneer:
 
     def _read(self) -> list[tuple[Packet, float]]:
         """Whatever packets the next read completes, each stamped with the time its first byte left
-        the robot: the read's time minus the packet's transfer time at the baud (a 31-byte SIP is
-        32 ms at 9600 baud), on the host's ``time.monotonic()`` clock as the laser's scans are."""
+        the robot: the read's time minus the transfer time at the baud of the packet and of every byte
+        that followed it in the read (a 31-byte SIP is 32 ms at 9600 baud), on the host's
+        ``time.monotonic()`` clock as the laser's scans are."""
         if self._closing.is_set():
             raise _Closing
         try:
@@ -335,7 +336,16 @@ class Pioneer:
             return []
         t = time.monotonic()
         per_byte = 10.0 / (self._ser.baudrate or self.baudrate)  # 8N1: ten bits a byte
-        return [(p, t - (len(p.data) + 5) * per_byte) for p in self._reader.feed(data)]
+        packets = self._reader.feed(data)
+        # A late read (USB latency, a busy host) completes several SIPs at once. They were sent one
+        # after the other, so each ends where the next begins: stamping them all from the read's time
+        # would put them microseconds apart and make any velocity taken between them absurd.
+        end = t - self._reader.pending * per_byte
+        stamped = []
+        for p in reversed(packets):
+            end -= (len(p.data) + 5) * per_byte
+            stamped.append((p, end))
+        return stamped[::-1]
 
     def _next_packet(self, timeout: float) -> Packet | None:
         deadline = time.monotonic() + timeout

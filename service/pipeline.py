@@ -52,14 +52,19 @@ class OdometryBuffer:
     :meth:`at` interpolates between the samples around ``t``; past the newest sample it
     extrapolates at the last measured velocity for at most ``max_extrapolation`` seconds (a scan
     usually ends between two SIPs; waiting for the next SIP would add up to 100 ms of latency).
+    That velocity is measured over at least ``velocity_baseline`` seconds (from the newest sample back
+    to the newest one that much older): SIPs completed by one late read arrive milliseconds apart,
+    and a velocity taken between two of them would throw the extrapolated pose metres away.
 
     Odometry restarts at (0, 0, 0) whenever P2OS is reopened; :meth:`new_session` makes the next
     sample continue from the last pose so the mapper sees one continuous odometry frame.
     """
 
-    def __init__(self, history: float = 5.0, max_extrapolation: float = 0.25):
+    def __init__(self, history: float = 5.0, max_extrapolation: float = 0.25,
+                 velocity_baseline: float = 0.05):
         self.history = history
         self.max_extrapolation = max_extrapolation
+        self.velocity_baseline = velocity_baseline
         self._t: list[float] = []
         self._p: list[Pose] = []
         self._offset: Pose = (0.0, 0.0, 0.0)
@@ -102,9 +107,11 @@ class OdometryBuffer:
             if n == 1 or t <= self._t[0]:
                 return self._p[0] if t <= self._t[0] else self._p[-1]
             i = bisect.bisect_left(self._t, t)
-            if i >= n:  # after the newest sample: extrapolate from the last two
-                i = n - 1
-                t = min(t, self._t[-1] + self.max_extrapolation)
+            if i >= n:  # after the newest sample: extrapolate over the velocity baseline
+                t1 = self._t[-1]
+                t = min(t, t1 + self.max_extrapolation)
+                j = max(0, min(bisect.bisect_right(self._t, t1 - self.velocity_baseline) - 1, n - 2))
+                return interpolate(self._p[j], self._p[-1], (t - self._t[j]) / (t1 - self._t[j]))
             t0, t1 = self._t[i - 1], self._t[i]
             return interpolate(self._p[i - 1], self._p[i], (t - t0) / (t1 - t0))
 

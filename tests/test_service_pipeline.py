@@ -50,6 +50,15 @@ def test_past_the_newest_sip_the_pose_is_extrapolated_for_a_bounded_time():
     assert b.at(5.0)[0] == pytest.approx(0.05 + 0.5 * 0.25)
 
 
+def test_sips_bunched_by_a_late_read_do_not_throw_the_extrapolated_pose_away():
+    b = OdometryBuffer(max_extrapolation=0.25, velocity_baseline=0.05)
+    for k in range(5):  # 0.5 m/s, SIPs every 100 ms
+        b.add(0.1 * k, 0.05 * k, 0.0, 0.0)
+    b.add(0.4 + 1e-6, 0.205, 0.0, 0.0)  # the next SIP completed by the same read: 1 us later, 5 mm on
+    # The velocity comes from SIPs at least 50 ms apart (0.5 m/s, not 5000 m/s).
+    assert b.at(0.5)[0] == pytest.approx(0.255, abs=0.01)
+
+
 def test_before_any_odometry_there_is_no_pose_and_before_the_first_the_first_holds():
     b = OdometryBuffer()
     assert b.at(1.0) is None
