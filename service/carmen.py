@@ -108,6 +108,10 @@ class MalformedLine(ValueError):
     """A line whose fields do not match its message format."""
 
 
+class LogFormatError(ValueError):
+    """A log with nothing usable in it (no laser scan at all): the message names the file."""
+
+
 def _pose(f: list[str], i: int) -> Pose:
     return (float(f[i]), float(f[i + 1]), float(f[i + 2]))
 
@@ -181,11 +185,13 @@ class CarmenReader:
 
     ``counters`` (a :class:`collections.Counter`) counts records by message name, plus
     ``"comment"``, ``"ignored"`` (message types not decoded here), ``"blank"`` and ``"malformed"``.
-    Iterating again re-reads the file and the counters start over.
+    Iterating again re-reads the file and the counters start over. ``quiet`` counts malformed lines
+    without a warning each (for a quick look at a log's head that a full read reports anyway).
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, quiet: bool = False):
         self.path = Path(path)
+        self.quiet = quiet
         self.counters: collections.Counter[str] = collections.Counter()
 
     def __iter__(self) -> Iterator[Record]:
@@ -213,7 +219,8 @@ class CarmenReader:
             rec = parser(f, no)
         except (ValueError, IndexError) as e:
             self.counters["malformed"] += 1
-            log.warning("%s:%d: malformed %s line skipped: %s", self.path, no, f[0], e)
+            if not self.quiet:
+                log.warning("%s:%d: malformed %s line skipped: %s", self.path, no, f[0], e)
             return None
         self.counters[f[0]] += 1
         return rec

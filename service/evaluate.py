@@ -95,7 +95,7 @@ def is_corrected(path: str | Path, probe: int = 50) -> bool:
     a reset ``ODOM`` at the same pose with timestamp 0 (SOURCES.md)."""
     last: LaserRecord | None = None
     seen = 0
-    for rec in CarmenReader(path):
+    for rec in CarmenReader(path, quiet=True):
         if isinstance(rec, LaserRecord):
             last = rec
             seen += 1

@@ -21,7 +21,7 @@ from pathlib import Path
 from mapper.mapper import Mapper
 from mapper.params import MapperParams
 from mapper.types import Odometry, Scan
-from service.carmen import CarmenReader, ParamRecord, mapper_inputs
+from service.carmen import CarmenReader, LogFormatError, ParamRecord, mapper_inputs
 from service.evaluate import Evaluation, Track, evaluate, is_corrected, rebuild_corrected, truth_from_log
 
 Progress = Callable[[int, int, float], None]
@@ -64,7 +64,7 @@ def params_for_log(path: str | Path, params: MapperParams | None = None) -> Mapp
     else 0 (the Intel, ACES and CSAIL logs' ranges are relative to the robot centre)."""
     params = params or MapperParams()
     offset = 0.0
-    for n, rec in enumerate(CarmenReader(path)):
+    for n, rec in enumerate(CarmenReader(path, quiet=True)):
         if isinstance(rec, ParamRecord) and rec.name == "robot_frontlaser_offset":
             offset = float(rec.value)
             break
@@ -128,6 +128,9 @@ def replay(
             progress(scans, total, spent)
     if progress:
         progress(scans, max(total, scans), spent)
+    if scans == 0:
+        raise LogFormatError(f"{path}: no laser scan could be read (FLASER or ROBOTLASER1 lines); "
+                             "the warnings above name the lines that were skipped")
     doc = mapper.document()
     result = ReplayResult(
         mapper=mapper,

@@ -45,3 +45,15 @@ def test_asrmap_replay_prints_the_figures_and_writes_map_and_picture(logs, tmp_p
     doc = json.loads(out_json.read_text())
     assert doc["schema"] == "asrmap/map/1"
     ET.parse(out_svg)
+
+
+def test_a_log_without_a_readable_scan_is_one_line_exit_2_and_each_bad_line_is_named_once(
+    tmp_path, capsys, caplog
+):
+    bad = tmp_path / "bad.log"
+    bad.write_text("FLASER 3 1 2\nODOM 1 2 3 0 0 0 1.0 h 1.0\nFLASER x\n")
+    assert main(["replay", str(bad), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad.log: no laser scan could be read" in err[0]
+    warned = [r.getMessage() for r in caplog.records if "malformed" in r.getMessage()]
+    assert sorted(w.split(":")[1] for w in warned) == ["1", "3"]  # lines 1 and 3, each once
