@@ -88,13 +88,13 @@ def peer_config(z: ZenohConfig) -> zenoh.Config:
         try:
             return zenoh.Config.from_file(z.config)
         except zenoh.ZError as exc:
-            raise BusError(f"zenoh.config {z.config}: {exc}") from None
-    return zenoh.Config.from_json5(json.dumps({
+            raise BusError(f"zenoh.config {z.config}: {_reason(exc)}") from None
+    return _from_json5({
         "mode": "peer",
         "listen": {"endpoints": list(z.listen)},
         "connect": {"endpoints": list(z.connect)},
         "scouting": _NO_SCOUTING,
-    }))
+    }, "zenoh.listen / zenoh.connect")
 
 
 def client_config(connect: list[str] | tuple[str, ...]) -> zenoh.Config:
@@ -103,17 +103,30 @@ def client_config(connect: list[str] | tuple[str, ...]) -> zenoh.Config:
     A peer that listens nowhere rather than a zenoh client: a client's ``open`` fails when the
     robot is not up yet, a peer keeps retrying and connects when it appears.
     """
-    return zenoh.Config.from_json5(json.dumps({
+    return _from_json5({
         "mode": "peer",
         "listen": {"endpoints": []},
         # Retry every 0.1-1 s (default 1-4 s) so a tool sees a robot soon after it comes up.
         "connect": {"endpoints": list(connect),
                     "retry": {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}},
         "scouting": _NO_SCOUTING,
-    }))
+    }, "--connect")
 
 
 _RUST_SOURCE = re.compile(r"\s+at \S+\.rs:\d+\.?")
+
+
+def _reason(exc: zenoh.ZError) -> str:
+    """zenoh's message without the Rust source location it appends at every layer."""
+    return _RUST_SOURCE.sub("", str(exc)).strip()
+
+
+def _from_json5(cfg: dict[str, Any], what: str) -> zenoh.Config:
+    """A zenoh configuration; a bad endpoint is a :class:`BusError` naming ``what`` set it."""
+    try:
+        return zenoh.Config.from_json5(json.dumps(cfg))
+    except zenoh.ZError as exc:
+        raise BusError(f"{what}: {_reason(exc)} (an endpoint looks like tcp/127.0.0.1:7447)") from None
 
 
 def open_session(cfg: zenoh.Config, what: str) -> zenoh.Session:
@@ -121,8 +134,7 @@ def open_session(cfg: zenoh.Config, what: str) -> zenoh.Session:
     try:
         return zenoh.open(cfg)
     except zenoh.ZError as exc:
-        # zenoh appends the Rust source location of every layer: noise to an operator.
-        reason = _RUST_SOURCE.sub("", str(exc)).strip()
+        reason = _reason(exc)
         if "in use" in reason:
             reason += "; is another asrmap running? choose another port in [zenoh] listen"
         raise BusError(f"cannot open the zenoh session ({what}): {reason}") from None

@@ -23,3 +23,16 @@ def test_unknown_benchmark_is_one_line_exit_2(capsys):
 def test_console_script_runs_help():
     out = subprocess.run([sys.executable, "-m", "service.cli", "--help"], capture_output=True, text=True)
     assert out.returncode == 0 and "bench" in out.stdout
+
+
+def test_bad_numbers_are_refused_naming_the_option(capsys):
+    import pytest
+
+    for argv, option in ((["simulate", "--duration", "-5"], "--duration"),
+                         (["simulate", "--fast", "0"], "--fast"),
+                         (["replay", "x.log", "--speed", "abc"], "--speed"),
+                         (["emulate", "pioneer", "--seconds", "nan"], "--seconds")):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 2
+        assert f"argument {option}: expected a number" in capsys.readouterr().err

@@ -82,10 +82,19 @@ def test_monitor_once_in_another_process_lists_the_robot_and_its_map():
     assert out.splitlines() == ["robot7  alive", "robot7  map: 3 ASRs, 0 links, 0 cycles (0 accepted)"], err
 
 
-def test_monitor_once_without_robots_exits_1():
+def test_monitor_once_without_robots_exits_1_saying_so():
     p = _cli("monitor", "--once", "--connect", f"tcp/127.0.0.1:{free_port()}", "--wait", "0.3")
-    out, _ = p.communicate(timeout=20)
+    out, err = p.communicate(timeout=20)
     assert p.returncode == 1 and out == ""
+    assert "no robot '*' alive through tcp/127.0.0.1:" in err
+
+
+def test_a_bad_endpoint_or_wait_is_one_line_exit_2():
+    for args in (["--connect", "garbage"], ["--wait", "-1"]):
+        p = _cli("monitor", "--once", *args)
+        _, err = p.communicate(timeout=20)
+        assert p.returncode == 2 and "Traceback" not in err and err.strip().splitlines()[-1].startswith(
+            "asrmap monitor: "), err
 
 
 def test_live_monitor_prints_events_and_exits_0_on_sigterm():

@@ -7,6 +7,8 @@ import contextlib
 import signal
 import threading
 
+from service.argtypes import positive
+
 NAME = "emulate"
 HELP = "run emulated devices on pseudo-terminals and print their paths, until Ctrl-C/SIGTERM"
 EXAMPLE = "asrmap emulate pioneer"
@@ -45,7 +47,7 @@ def add_arguments(p) -> None:
                    help="both devices in a simulated world (lab, office, aliasing or a world .json): the "
                         "Pioneer moves in it (collisions stall it), the laser sees it")
     p.add_argument("--name", help="the name the device reports (pioneer: SYNC2 robot name)")
-    p.add_argument("--seconds", type=float, default=None,
+    p.add_argument("--seconds", type=positive, default=None,
                    help="stop after this long (default: run until Ctrl-C or SIGTERM)")
 
 

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 
+from service.argtypes import non_negative
 from service.monitor import Monitor, SvgWriter, discover, format_update
 
 NAME = "monitor"
@@ -20,7 +22,7 @@ def add_arguments(p) -> None:
                    help="keep a picture of the map current in OUT ('{robot}' in OUT: one file per robot)")
     p.add_argument("--once", action="store_true",
                    help="list the robots alive and their maps, then exit (1 if none answered)")
-    p.add_argument("--wait", type=float, default=2.0, metavar="S",
+    p.add_argument("--wait", type=non_negative, default=2.0, metavar="S",
                    help="with --once: how long to wait for robots (s, default 2)")
 
 
@@ -40,7 +42,11 @@ def run(args) -> int:
                     print(format_update(u), flush=True)
             for path in svg.update(mon) if svg else ():
                 print(f"wrote {path}", flush=True)
-            return 0 if any(u.kind == "alive" for u in updates) else 1
+            if any(u.kind == "alive" for u in updates):
+                return 0
+            print(f"asrmap monitor: no robot {args.robot!r} alive through {', '.join(connect)} within "
+                  f"{args.wait:g} s (is the service running, and listening there?)", file=sys.stderr)
+            return 1
         print(f"watching asrmap/{args.robot}/ through {', '.join(connect)} (Ctrl-C to stop)", flush=True)
         while not stop.is_set():
             for u in mon.poll(0.2):

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 from mapper.cycle_params import CycleParams
+from service.argtypes import speed
 
 NAME = "replay"
 HELP = "feed a CARMEN log (.gz ok) to the mapper; print ASRs, cycles, precision, recall, scans/s"
@@ -38,7 +39,7 @@ def add_arguments(p) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--through-serial", action="store_true",
                    help="play the log through the emulated Pioneer and LMS200 on ptys and the whole service")
-    p.add_argument("--speed", default="1", metavar="N|max",
+    p.add_argument("--speed", default=1.0, type=speed, metavar="N|max",
                    help="with --through-serial: N times faster than recorded, or 'max' (the line's limit)")
     p.add_argument("--ignore-baud", action="store_true",
                    help="with --through-serial: send scans when due even where the baud would not allow it")
@@ -105,9 +106,8 @@ def run(args) -> int:
     if args.through_serial:
         from service.serial_replay import serial_replay
 
-        speed = args.speed if args.speed == "max" else float(args.speed)
         res = serial_replay(args.log, params=params, truth=args.truth, logged_poses=args.logged_poses,
-                            speed=speed, rate_limit=not args.ignore_baud,
+                            speed=args.speed, rate_limit=not args.ignore_baud,
                             progress=None if args.no_progress else Bar())
     else:
         res = replay(args.log, params=params, truth=args.truth, logged_poses=args.logged_poses,

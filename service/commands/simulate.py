@@ -10,6 +10,7 @@ import threading
 from dataclasses import replace
 from pathlib import Path
 
+from service.argtypes import positive
 from service.sim.simulator import DirectSim, SimParams, StackSim
 from service.sim.world import builtin_worlds, load_world
 
@@ -28,9 +29,9 @@ def add_arguments(p) -> None:
     p.add_argument("--explore", action=argparse.BooleanOptionalAction, default=True,
                    help="explore autonomously (default); --no-explore keeps the robot still (for 60 s "
                         "unless --duration)")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
+    p.add_argument("--duration", type=positive, default=None, metavar="S",
                    help="stop after S simulated seconds (default: when exploration is done)")
-    p.add_argument("--fast", nargs="?", type=float, const=FAST, default=None, metavar="FACTOR",
+    p.add_argument("--fast", nargs="?", type=positive, const=FAST, default=None, metavar="FACTOR",
                    help=f"run FACTOR times faster than real time (default factor {FAST:g}): the emulators' "
                         "SIP cycle and scan rate and the robot's motion all scale together")
     p.add_argument("--direct", action="store_true",
