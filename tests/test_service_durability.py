@@ -9,16 +9,11 @@ import sys
 import threading
 import time
 
-import pytest
 import zenoh
 
 from service.bench.service import ServiceProcess, free_port, write_config
 from service.bus import client_config
 from service.store import MapStore
-
-Mapper = pytest.importorskip("mapper.mapper", reason="the Mapper is not written yet").Mapper
-pytestmark = pytest.mark.skipif(not hasattr(Mapper, "from_document"),
-                                reason="Mapper.from_document (continuing a stored map) is not written yet")
 
 LOG = "intel-raw-first5505.clf.gz"
 
