@@ -6,7 +6,7 @@ streams 0xB0 telegrams in continuous mode at the rate the real device reaches at
 resolution. The codec is the one the reader uses (:mod:`laser.telegram`, :mod:`laser.values`).
 
 A pty moves bytes at memory speed whatever its termios say, so the emulator compares the speed
-the host set on the pty (:func:`service.ptys.line_speed`) with its own: when they differ, the host's
+the host set on the pty (:func:`serialport.ptys.line_speed`) with its own: when they differ, the host's
 bytes are dropped as unintelligible and the device's output reaches the host as garbage, as on a
 real line. That is what makes baud detection and reboot recovery testable.
 """
@@ -30,14 +30,15 @@ from laser.sources import RangeSource, constant
 from laser.telegram import ACK, NAK, REPLY_BIT, FrameReader, Telegram, reply
 from laser.timing import mirror_period, scan_period
 from laser.values import encode_b0, make_scan, scan_angles
-from service.ptys import line_speed
+from serialport.device import DeviceThread
+from serialport.ptys import line_speed
 
 log = logging.getLogger(__name__)
 
 _POLL_S = 0.02  # longest sleep of the device loop: bounds stop() and power_cycle() latency
 
 
-class LMS2xxEmulator:
+class LMS2xxEmulator(DeviceThread):
     """An LMS200 behind the pty master ``fd`` (the caller owns and closes the fd).
 
     ``ranges(t, angles_rad) -> metres`` supplies each scan (:mod:`laser.sources`). ``baud`` is the
@@ -48,6 +49,8 @@ class LMS2xxEmulator:
     power-on to the 0x90 telegram (a real LMS needs ~30 s). ``garbage`` makes output at a baud the
     host is not listening at arrive as random bytes instead of nothing.
     """
+
+    thread_name = "lms2xx-emulator"
 
     def __init__(
         self,
@@ -69,7 +72,7 @@ class LMS2xxEmulator:
     ) -> None:
         if baud not in p.BAUD_MODES:
             raise ValueError(f"an LMS2xx runs at {sorted(p.BAUD_MODES)} baud, not {baud}")
-        self.fd = fd
+        super().__init__(fd)
         self.ranges = ranges or constant(2.0)
         self.rate_limit = rate_limit
         self.boot_time = boot_time
@@ -101,38 +104,6 @@ class LMS2xxEmulator:
         self._new_baud: int | None = None
         self._next_scan = 0.0
         self._noise: list[bytes] = []
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._was_blocking = True
-
-    # ---- lifecycle -------------------------------------------------------------------------------
-    def start(self) -> LMS2xxEmulator:
-        """Run the device in a background thread; returns self."""
-        if self._thread is None:
-            self._was_blocking = os.get_blocking(self.fd)
-            # A device's transmitter never waits for the host: output nobody reads is lost, not queued.
-            os.set_blocking(self.fd, False)
-            self._stop.clear()
-            self._thread = threading.Thread(target=self._run, name="lms2xx-emulator", daemon=True)
-            self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        """Stop the thread (the fd stays open)."""
-        if self._thread is not None:
-            self._stop.set()
-            self._thread.join(timeout=2.0)
-            self._thread = None
-            try:
-                os.set_blocking(self.fd, self._was_blocking)
-            except OSError:
-                pass
-
-    def __enter__(self) -> LMS2xxEmulator:
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
 
     # ---- test hooks ------------------------------------------------------------------------------
     def power_cycle(self, off_time: float | None = None) -> None:
@@ -345,10 +316,4 @@ class LMS2xxEmulator:
             self._write(self._rng.randbytes(len(data)))
 
     def _write(self, data: bytes) -> None:
-        try:
-            n = os.write(self.fd, data)
-        except (BlockingIOError, InterruptedError):
-            n = 0
-        except OSError:
-            n = 0
-        self.counters["bytes_lost"] += len(data) - n
+        self.counters["bytes_lost"] += self._transmit(data)

@@ -12,7 +12,7 @@ from laser.emulator import LMS2xxEmulator
 from laser.reader import LMS2xx, Timeouts
 from laser.sources import RangeSource, room
 from laser.values import LaserScan
-from service.ptys import open_pty
+from serialport.ptys import open_pty
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,7 @@ from pioneer.packet import Packet, PacketReader, frame
 from pioneer.params import P2DX, RobotParams
 from pioneer.physics import Body, DiffDrive, MotionHook, OdometryError, Pose
 from pioneer.sip import SIP, EncoderCounts, RobotConfig, encode_config, encode_encoder, encode_sip
+from serialport.device import DeviceThread
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +56,7 @@ _BAUD = {getattr(termios, f"B{b}"): b for b in (9600, 19200, 38400, 57600, 11520
 SonarSource = Callable[[int, Pose], "float | None"]
 
 
-class PioneerEmulator:
+class PioneerEmulator(DeviceThread):
     """A P2OS robot behind the pty master ``fd`` (the caller owns and closes the fd).
 
     - ``params``: the robot model; ``name``: the robot name reported at SYNC2.
@@ -71,6 +72,8 @@ class PioneerEmulator:
     - ``baud``: the host-port rate the robot listens at; bytes the host sends at another rate (as
       set on the pty) are unintelligible and dropped. None (default): any rate.
     """
+
+    thread_name = "pioneer-emulator"
 
     def __init__(
         self,
@@ -90,7 +93,7 @@ class PioneerEmulator:
         answer_config: bool = True,
         baud: int | None = None,
     ) -> None:
-        self.fd = fd
+        super().__init__(fd)
         self.params = params
         self.name = name
         self.body: Body = body or DiffDrive(params, start_pose, odometry_error, motion_hook)
@@ -118,9 +121,6 @@ class PioneerEmulator:
         self._estop_button = False
         self._reader = PacketReader()
         self._lock = threading.RLock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._was_blocking = True
         self._last_client = time.monotonic()
         self._watchdog_tripped = False
         self._next_sonar = 0
@@ -128,34 +128,8 @@ class PioneerEmulator:
         self._outbox: deque[tuple[float, bytes]] = deque()  # SIPs on the wire: (arrival time, bytes)
 
     # ---- lifecycle -------------------------------------------------------------------------------
-    def start(self) -> PioneerEmulator:
-        """Power on: run the robot in a background thread; returns self."""
-        if self._thread is None:
-            self._was_blocking = os.get_blocking(self.fd)
-            # A robot's transmitter never waits for the host: output nobody reads is lost.
-            os.set_blocking(self.fd, False)
-            self._stop.clear()
-            self._last_step = time.monotonic()
-            self._thread = threading.Thread(target=self._run, name="pioneer-emulator", daemon=True)
-            self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        """Power off: stop the thread (the fd stays open; a new emulator may take it over)."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(2.0)
-            self._thread = None
-            try:
-                os.set_blocking(self.fd, self._was_blocking)
-            except OSError:
-                pass
-
-    def __enter__(self) -> PioneerEmulator:
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
+    def _starting(self) -> None:
+        self._last_step = time.monotonic()
 
     # ---- what tests and worlds look at -----------------------------------------------------------
     @property
@@ -242,13 +216,7 @@ class PioneerEmulator:
         return _BAUD.get(speed, 9600)
 
     def _write(self, data: bytes) -> None:
-        try:
-            n = os.write(self.fd, data)
-        except OSError as exc:
-            if exc.errno not in (errno.EAGAIN, errno.EIO):
-                raise
-            n = 0
-        self._counters["bytes_lost"] += len(data) - n
+        self._counters["bytes_lost"] += self._transmit(data)
 
     def _tick(self, now: float) -> None:
         if (self.state == "open" and not self._watchdog_tripped and now - self._last_client > self.watchdog):

@@ -17,7 +17,7 @@ from pioneer.driver import Identity, Pioneer, Timeouts
 from pioneer.emulator import PioneerEmulator
 from pioneer.odometry import PioneerOdometry
 from pioneer.params import P2DX, RobotParams
-from service.ptys import open_pty
+from serialport.ptys import open_pty
 
 
 @dataclass(frozen=True)

@@ -322,9 +322,9 @@ def serial_replay(
     from laser.playback import PlaybackLMS2xx
     from pioneer.emulator import PioneerEmulator
     from pioneer.playback import PlaybackBody, PoseTrack
+    from serialport.ptys import open_pty
     from service.bench.service import free_port
     from service.pipeline import Service
-    from service.ptys import open_pty
 
     rec = recording or Recording.from_log(path, logged_poses)
     if params is None:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from serialport.ptys import open_pty
 from service.datasets import data_dir
-from service.ptys import open_pty
 
 
 @pytest.fixture

@@ -17,7 +17,7 @@ from laser.reader import LMS2xx, Timeouts
 from laser.sources import constant, fixed
 from laser.timing import sweep_time, transmit_time
 from laser.values import encode_b0, make_scan
-from service.ptys import open_pty
+from serialport.ptys import open_pty
 
 FAST = Timeouts(probe=0.1, reply=0.5, settle=0.005, scan_margin=0.3, connect=0.0, recover=5.0, reset=2.0)
 

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from service.ptys import PtyPair, open_pty
+from serialport.ptys import PtyPair, open_pty
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -28,7 +28,7 @@ from pioneer.packet import PacketReader, frame
 from pioneer.params import P2DX
 from pioneer.physics import DiffDrive
 from pioneer.sip import decode_sip, encode_sip
-from service.ptys import open_pty
+from serialport.ptys import open_pty
 
 NAME = "sip"
 HELP = "P2OS SIPs decoded per second by the reader (goal >= 100,000/s); VEL-to-SIP latency over a pty"

@@ -389,7 +389,7 @@ class WorldDevices:
     def start(self) -> WorldDevices:
         from laser.emulator import LMS2xxEmulator
         from pioneer.emulator import PioneerEmulator
-        from service.ptys import open_pty
+        from serialport.ptys import open_pty
 
         speed, scan_period, robot = self.speed, self.p.scan_period, self.robot
 
