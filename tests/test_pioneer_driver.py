@@ -306,6 +306,33 @@ def test_sip_stamps_are_the_send_time_and_strictly_increasing(robot, emu):
     assert all(arrived - t >= 0.031 for arrived, t in got)
 
 
+class PairedSipsEmulator(PioneerEmulator):
+    """A robot behind a USB adapter that delivers its open-session SIPs two at a time."""
+
+    def _write(self, data: bytes) -> None:
+        if self.state != "open":
+            return super()._write(data)
+        held, self._held = getattr(self, "_held", b""), b""
+        if held:
+            return super()._write(held + data)
+        self._held = data
+
+
+def test_sips_arriving_together_keep_their_wire_spacing(pty_pair):
+    emu = PairedSipsEmulator(pty_pair.master, params=QUICK, sip_cycle=CYCLE).start()
+    try:
+        with _pioneer(pty_pair) as robot:
+            got = []
+            robot.on_odometry(lambda o: got.append(o.t))
+            _settle(robot, 8)
+    finally:
+        emu.stop()
+    gaps = [b - a for a, b in itertools.pairwise(got)]
+    # Each SIP (30 bytes and more) is at least 31 ms on the wire at 9600 baud: two SIPs read together
+    # are stamped that far apart, not both at the read's time.
+    assert min(gaps) >= 0.031 - 1e-6, gaps
+
+
 def test_a_robot_that_stops_answering_is_lost_within_a_second(pty_pair):
     events = []
     first = _emulator(pty_pair)
