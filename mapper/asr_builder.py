@@ -68,6 +68,8 @@ def _nearest_segment(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.nda
     pi, si, d = _pairs_within(p, seg, tol)
     e = np.zeros(len(p), dtype=int)
     dist = np.full(len(p), np.inf)
+    if len(pi) == 0:
+        return e, dist
     order = np.lexsort((d, pi))
     first = np.append(True, np.diff(pi[order]) != 0)
     k = order[first]
@@ -145,6 +147,8 @@ class AsrBuilder:
         if gates is not None:
             new = shapely.difference(new, gates)
         grown = shapely.union(self.polygon, new)
+        if grown.is_empty:  # nothing seen yet (every beam no return, or the laser covered)
+            return False
         if self.polygon.area > 0 and grown.area - self.polygon.area < p.min_area_gain:
             self._record(pose, robot)
             return False

@@ -7,6 +7,7 @@ which each ASR frame has its ``origin``). Units: metres, radians, seconds.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -14,15 +15,41 @@ import shapely
 
 from mapper.se2 import Pose
 
+#: rad. The finest beam spacing a scan may have (an LMS200 at 0.25° has 4.4e-3 rad): closer beams are
+#: a corrupt header, not a laser, and would make every beam the same ray.
+MIN_BEAM_SPACING = 1e-4
+
+
+#: The largest magnitude a pose coordinate (m), heading (rad), beam angle (rad) or range (m) may have:
+#: 1000 km, a thousand turns. Beyond them a reading is corrupt, and the geometry would lose its
+#: millimetres to rounding or overflow.
+MAX_COORDINATE = 1e6
+MAX_ANGLE = 2000 * math.pi
+
+
+def _finite(owner: str, bound: float = math.inf, **values: float) -> None:
+    for name, v in values.items():
+        if not (math.isfinite(v) and abs(v) <= bound):
+            raise ValueError(f"{owner}.{name} is {v!r}: expected a finite number"
+                             + (f" of magnitude at most {bound:g}" if math.isfinite(bound) else ""))
+
 
 @dataclass(frozen=True, slots=True)
 class Odometry:
-    """Wheel odometry: time ``t`` (s), ``x``, ``y`` (m), ``theta`` (rad), in the odometry frame."""
+    """Wheel odometry: time ``t`` (s), ``x``, ``y`` (m), ``theta`` (rad), in the odometry frame.
+
+    Raises ValueError on a NaN, infinite or absurd (:data:`MAX_COORDINATE`, :data:`MAX_ANGLE`) field:
+    one would poison every pose after it."""
 
     t: float
     x: float
     y: float
     theta: float
+
+    def __post_init__(self) -> None:
+        _finite("Odometry", t=self.t)
+        _finite("Odometry", MAX_COORDINATE, x=self.x, y=self.y)
+        _finite("Odometry", MAX_ANGLE, theta=self.theta)
 
     @property
     def pose(self) -> Pose:
@@ -34,7 +61,12 @@ class Scan:
     """One laser sweep in the laser frame (x forward, y left, counter-clockwise angles).
 
     ``t``: time (s) on the same clock as :class:`Odometry`; ``ranges``: float array (m), beam i at
-    ``angle_min + i * angle_increment`` (rad); readings >= ``max_range`` (m) are *no return*.
+    ``angle_min + i * angle_increment`` (rad); readings >= ``max_range`` (m) are *no return*, and so
+    are NaN or infinite readings.
+
+    Raises ValueError when the sweep itself is not one: a non-finite time, angle or max range, ranges
+    that are not one row, or beams closer than :data:`MIN_BEAM_SPACING` or spread over more than a
+    full turn.
     """
 
     t: float
@@ -42,6 +74,20 @@ class Scan:
     angle_min: float
     angle_increment: float
     max_range: float
+
+    def __post_init__(self) -> None:
+        _finite("Scan", t=self.t)
+        _finite("Scan", MAX_ANGLE, angle_min=self.angle_min, angle_increment=self.angle_increment)
+        _finite("Scan", MAX_COORDINATE, max_range=self.max_range)
+        n = int(np.size(self.ranges))
+        if np.ndim(self.ranges) != 1:
+            raise ValueError(f"Scan.ranges has shape {np.shape(self.ranges)}: expected one row of ranges (m)")
+        if self.max_range <= 0:
+            raise ValueError(f"Scan.max_range is {self.max_range!r}: expected a range > 0 (m)")
+        spread = abs(self.angle_increment) * max(n - 1, 0)
+        if n > 1 and not (abs(self.angle_increment) >= MIN_BEAM_SPACING and spread <= 2 * math.pi + 1e-6):
+            raise ValueError(f"Scan.angle_increment is {self.angle_increment!r} rad for {n} beams: expected "
+                             f"beams at least {MIN_BEAM_SPACING} rad apart within one turn")
 
     @property
     def angles(self) -> np.ndarray:

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mapper.types import Odometry, Scan
+from mapper.types import MIN_BEAM_SPACING, Odometry, Scan
 
 log = logging.getLogger(__name__)
 
@@ -112,8 +112,16 @@ class LogFormatError(ValueError):
     """A log with nothing usable in it (no laser scan at all): the message names the file."""
 
 
-def _pose(f: list[str], i: int) -> Pose:
-    return (float(f[i]), float(f[i + 1]), float(f[i + 2]))
+def _num(text: str, what: str) -> float:
+    """A finite number; NaN or infinity in a pose, a time or an angle is a malformed line."""
+    x = float(text)
+    if not math.isfinite(x):
+        raise MalformedLine(f"{what} is {text!r}, not a finite number")
+    return x
+
+
+def _pose(f: list[str], i: int, what: str = "pose") -> Pose:
+    return (_num(f[i], what), _num(f[i + 1], what), _num(f[i + 2], what))
 
 
 def _flaser(f: list[str], line: int) -> LaserRecord:
@@ -124,16 +132,16 @@ def _flaser(f: list[str], line: int) -> LaserRecord:
     k = 2 + n
     amin, inc = flaser_geometry(n)
     return LaserRecord(
-        t=float(f[k + 6]),
+        t=_num(f[k + 6], "timestamp"),
         ranges=ranges,
         angle_min=amin,
         angle_increment=inc,
         max_range=NO_RETURN_M,
         pose=_pose(f, k),
-        odom_pose=_pose(f, k + 3),
+        odom_pose=_pose(f, k + 3, "odometry pose"),
         laser_pose=None,
         kind="FLASER",
-        logger_t=float(f[k + 8]),
+        logger_t=_num(f[k + 8], "logger timestamp"),
         line=line,
     )
 
@@ -141,24 +149,27 @@ def _flaser(f: list[str], line: int) -> LaserRecord:
 def _robotlaser1(f: list[str], line: int) -> LaserRecord:
     # ROBOTLASER1 laser_type start_angle fov angular_res max_range accuracy remission_mode n r1..rn
     #   n_rem [rem] laser_x y theta robot_x y theta tv rv forward_safety side_safety turn_axis ipc host logger
-    start, _fov, res, max_range = float(f[2]), float(f[3]), float(f[4]), float(f[5])
+    start, res, max_range = _num(f[2], "start_angle"), _num(f[4], "angular_res"), _num(f[5], "max_range")
     n = int(f[8])
     k = 9 + n
     n_rem = int(f[k])
     k += 1 + n_rem
     if n < 2 or len(f) != k + 6 + 5 + 3:
         raise MalformedLine(f"ROBOTLASER1 with {n} readings needs {k + 14} fields, found {len(f)}")
+    if not (abs(res) >= MIN_BEAM_SPACING and abs(res) * (n - 1) <= 2 * math.pi + 1e-6) or max_range <= 0:
+        raise MalformedLine(f"ROBOTLASER1 geometry: {n} beams {res!r} rad apart, max range {max_range!r} m "
+                            "is not a laser sweep")
     return LaserRecord(
-        t=float(f[k + 11]),
+        t=_num(f[k + 11], "timestamp"),
         ranges=np.asarray(f[9 : 9 + n], dtype=np.float32),
         angle_min=start,
         angle_increment=res,
         max_range=min(max_range, NO_RETURN_M),
         pose=_pose(f, k + 3),
         odom_pose=None,
-        laser_pose=_pose(f, k),
+        laser_pose=_pose(f, k, "laser pose"),
         kind="ROBOTLASER1",
-        logger_t=float(f[k + 13]),
+        logger_t=_num(f[k + 13], "logger timestamp"),
         line=line,
     )
 
@@ -166,7 +177,9 @@ def _robotlaser1(f: list[str], line: int) -> LaserRecord:
 def _odom(f: list[str], line: int) -> OdomRecord:
     if len(f) != 10:
         raise MalformedLine(f"ODOM needs 10 fields, found {len(f)}")
-    x, y, th, tv, rv, acc, t = (float(v) for v in f[1:8])
+    x, y, th = _pose(f, 1)
+    tv, rv, acc = (float(v) for v in f[4:7])
+    t = _num(f[7], "timestamp")
     return OdomRecord(t, x, y, th, tv, rv, acc, line)
 
 
@@ -175,6 +188,18 @@ def _param(f: list[str], line: int) -> ParamRecord:
         raise MalformedLine(f"PARAM needs a name and a value, found {len(f) - 1} fields")
     # PARAM name value [host logger_t]: values never contain spaces in CARMEN
     return ParamRecord(f[1], f[2], line)
+
+
+def _check(rec: Record) -> None:
+    """Raise ValueError where the mapper would refuse the record's readings (absurd poses, a sweep
+    that is not one): such a line is malformed, skipped and counted like any other."""
+    if isinstance(rec, LaserRecord):
+        rec.scan()
+        for pose in (rec.pose, rec.odom_pose):
+            if pose is not None:
+                Odometry(rec.t, *pose)
+    elif isinstance(rec, OdomRecord):
+        Odometry(rec.t, *rec.pose)
 
 
 _PARSERS = {"FLASER": _flaser, "ROBOTLASER1": _robotlaser1, "ODOM": _odom, "PARAM": _param}
@@ -217,6 +242,7 @@ class CarmenReader:
             return None
         try:
             rec = parser(f, no)
+            _check(rec)
         except (ValueError, IndexError) as e:
             self.counters["malformed"] += 1
             if not self.quiet:

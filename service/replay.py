@@ -13,6 +13,8 @@ from __future__ import annotations
 import collections
 import dataclasses
 import gzip
+import logging
+import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -23,6 +25,8 @@ from mapper.params import MapperParams
 from mapper.types import Odometry, Scan
 from service.carmen import CarmenReader, LogFormatError, ParamRecord, mapper_inputs
 from service.evaluate import Evaluation, Track, evaluate, is_corrected, rebuild_corrected, truth_from_log
+
+log = logging.getLogger(__name__)
 
 Progress = Callable[[int, int, float], None]
 """Called as progress(scans done, scans in the log, mapper seconds so far)."""
@@ -59,6 +63,9 @@ def count_scans(path: str | Path) -> int:
         return sum(1 for line in fh if line.startswith(("FLASER", "ROBOTLASER1")))
 
 
+MAX_LASER_OFFSET_M = 2.0  # a laser more than 2 m from the robot centre is a corrupt PARAM line
+
+
 def params_for_log(path: str | Path, params: MapperParams | None = None) -> MapperParams:
     """Mapper parameters for a recorded log: the laser offset from ``PARAM robot_frontlaser_offset``,
     else 0 (the Intel, ACES and CSAIL logs' ranges are relative to the robot centre)."""
@@ -66,7 +73,14 @@ def params_for_log(path: str | Path, params: MapperParams | None = None) -> Mapp
     offset = 0.0
     for n, rec in enumerate(CarmenReader(path, quiet=True)):
         if isinstance(rec, ParamRecord) and rec.name == "robot_frontlaser_offset":
-            offset = float(rec.value)
+            try:
+                offset = float(rec.value)
+            except ValueError:
+                offset = math.nan
+            if not abs(offset) <= MAX_LASER_OFFSET_M:  # NaN too
+                log.warning("%s:%d: PARAM robot_frontlaser_offset %r is not an offset of at most %g m; "
+                            "using 0", path, rec.line, rec.value, MAX_LASER_OFFSET_M)
+                offset = 0.0
             break
         if n > 200:
             break

@@ -8,9 +8,19 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from mapper.types import Odometry, Scan
-from service.carmen import CarmenReader, LaserRecord, OdomRecord, ParamRecord, flaser_geometry, mapper_inputs
+from service.carmen import (
+    CarmenReader,
+    LaserRecord,
+    LogFormatError,
+    OdomRecord,
+    ParamRecord,
+    flaser_geometry,
+    mapper_inputs,
+)
 
 
 @pytest.mark.parametrize(
@@ -104,3 +114,70 @@ def test_mapper_inputs_pairs_odometry_with_each_scan(shared_data):
     assert [type(i) for i in items] == [Odometry, Scan] * 5
     assert items[0].t == items[1].t
     assert items[1].max_range == 50.0
+
+
+FLASER_OK = "FLASER 3 1.0 2.0 3.0 {x} 0 0 {x} 0 0 {t} h {t}"
+ROBOTLASER_OK = "ROBOTLASER1 0 -1.57 3.14 {res} 81.9 0.01 0 3 1 2 3 0 0 0 0 0 0 0 0 0 0 0 0 {t} h {t}"
+
+
+@pytest.mark.parametrize(("line", "why"), [
+    (FLASER_OK.format(x="nan", t="1.0"), "pose is 'nan', not a finite number"),
+    (FLASER_OK.format(x="0", t="inf"), "timestamp is 'inf'"),
+    (FLASER_OK.format(x="1e308", t="1.0"), "Odometry.x is 1e+308: expected a finite number of magnitude"),
+    (ROBOTLASER_OK.format(res="1e-320", t="1.0"), "ROBOTLASER1 geometry: 3 beams 1e-320 rad apart"),
+    (ROBOTLASER_OK.format(res="3.5", t="1.0"), "ROBOTLASER1 geometry"),
+    ("ODOM 1 2 nan 0 0 0 1.0 h 1.0", "pose is 'nan'"),
+])
+def test_non_finite_or_absurd_readings_are_malformed_lines_named_by_file_and_line(
+    tmp_path, caplog, line, why
+):
+    p = tmp_path / "bad.log"
+    p.write_text(FLASER_OK.format(x="0", t="0.5") + "\n" + line + "\n")
+    reader = CarmenReader(p)
+    with caplog.at_level(logging.WARNING, logger="service.carmen"):
+        recs = list(reader)
+    assert len(recs) == 1 and reader.counters["malformed"] == 1
+    assert f"{p}:2: malformed" in caplog.text and why in caplog.text
+
+
+_TOKENS = ["nan", "inf", "-inf", "-5", "1e308", "99999999999", "x", "", "0", "-0", "1e-320", "3", "181",
+           "1e6"]
+_LINES = [FLASER_OK.format(x="0", t="1.0"), "ODOM 1 2 3 0 0 0 1.0 h 1.0",
+          "PARAM robot_frontlaser_offset 0.1 h 0", ROBOTLASER_OK.format(res="0.0174", t="1.0")]
+
+
+@st.composite
+def _damaged_logs(draw):
+    lines = []
+    for _ in range(draw(st.integers(1, 6))):
+        f = draw(st.sampled_from(_LINES)).split()
+        for _ in range(draw(st.integers(0, 3))):
+            i = draw(st.integers(0, len(f) - 1))
+            op = draw(st.sampled_from(["replace", "delete", "insert"]))
+            if op == "replace":
+                f[i] = draw(st.sampled_from(_TOKENS))
+            elif op == "delete" and len(f) > 1:
+                del f[i]
+            else:
+                f.insert(i, draw(st.sampled_from(_TOKENS)))
+        lines.append(" ".join(f))
+    return "\n".join(lines) + "\n"
+
+
+@settings(max_examples=150, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(text=_damaged_logs())
+def test_damaged_log_lines_never_escape_the_reader_or_the_mapper(tmp_path, text):
+    from service.replay import replay
+
+    p = tmp_path / "damaged.log"
+    p.write_text(text)
+    logging.disable(logging.WARNING)
+    try:
+        list(mapper_inputs(p))
+        try:
+            replay(p)
+        except LogFormatError:  # no usable scan at all: one line for the user
+            pass
+    finally:
+        logging.disable(logging.NOTSET)

@@ -7,6 +7,7 @@ laser offset (x 17 mm, y 8 mm) that the default MapperParams undo.
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -18,7 +19,7 @@ from mapper.lines import extract_surfaces, scan_points
 from mapper.mapper import Mapper
 from mapper.params import MapperParams
 from mapper.se2 import transform_points
-from mapper.types import Odometry
+from mapper.types import Odometry, Scan
 from mapper.view import build_view
 
 P = MapperParams()
@@ -158,3 +159,27 @@ def test_asr_exit_ids_are_stable_as_the_robot_looks_around():
     e = m.asrs[1].exits[0]
     frame = (0.0, 0.0, -0.4)  # the ASR frame is the robot pose at the first scan
     assert _matches(_world(frame, [e.a, e.b])[0], (2.5, -0.45), (2.5, 0.45), 0.05)
+
+
+@pytest.mark.parametrize("ranges", [np.full(181, 81.91), np.full(181, 0.001), np.full(181, np.nan)],
+                         ids=["every beam no return", "laser covered", "NaN readings"])
+def test_a_laser_that_sees_nothing_neither_crashes_nor_invents_surfaces(ranges):
+    m = Mapper(MapperParams())
+    for k in range(40):
+        m.add_odometry(Odometry(0.1 * k, 0.05 * k, 0.0, 0.0))
+        m.add_scan(Scan(0.1 * k, ranges, -math.pi / 2, math.pi / 180, 8.0))
+    (asr,) = m.document()["asrs"]
+    assert "surface" not in asr["edges"] and not asr["exits"]
+
+
+@pytest.mark.parametrize(("make", "message"), [
+    (lambda: Odometry(0.0, math.nan, 0.0, 0.0), "Odometry.x is nan: expected a finite number"),
+    (lambda: Odometry(math.inf, 0.0, 0.0, 0.0), "Odometry.t is inf"),
+    (lambda: Scan(0.0, np.ones(181), -1.57, 0.0, 8.0), "Scan.angle_increment is 0.0 rad for 181 beams"),
+    (lambda: Scan(0.0, np.ones(181), -1.57, 0.1, 8.0), "within one turn"),
+    (lambda: Scan(0.0, np.ones((2, 3)), -1.57, 0.01, 8.0), "expected one row of ranges"),
+    (lambda: Scan(0.0, np.ones(181), -1.57, 0.01, -1.0), "Scan.max_range is -1.0"),
+])
+def test_readings_that_are_not_readings_are_refused_with_the_field_named(make, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        make()
