@@ -267,6 +267,11 @@ def _mapper_fields() -> dict[str, Any] | None:
     return {f.name: getattr(cls(), f.name) for f in dataclasses.fields(cls)}
 
 
+# The laser's mounting offsets may be negative; every other MapperParams number is a size (m), an
+# angle (rad), a count, a noise figure or a threshold, which is meaningless at or below zero.
+_SIGNED_MAPPER_FIELDS = frozenset({"laser_x", "laser_y", "laser_theta"})
+
+
 def _check_mapper(table: dict, problems: list[str]) -> tuple[tuple[str, Any], ...]:
     known = _mapper_fields()
     out = []
@@ -284,6 +289,9 @@ def _check_mapper(table: dict, problems: list[str]) -> tuple[tuple[str, Any], ..
             if isinstance(default, int) and not isinstance(v, int):
                 ok = False
             expected = "an integer" if isinstance(default, int) else "a number"
+            if name not in _SIGNED_MAPPER_FIELDS:
+                ok = ok and v > 0
+                expected += " > 0"
             v = float(v) if ok and isinstance(default, float) else v
         elif isinstance(default, str):
             ok, expected = isinstance(v, str), "a string"

@@ -112,6 +112,14 @@ def test_mapper_overrides_are_validated_against_mapper_params():
     assert lines[1] == 'f.toml: mapper.laser_x: expected a number; found "near"'
 
 
+def test_mapper_sizes_must_be_positive_but_the_laser_offsets_may_be_negative():
+    with pytest.raises(ConfigError) as e:
+        parse({"mapper": {"passage_width": -0.6, "max_viewpoints": 0}}, "f.toml")
+    assert str(e.value).splitlines() == ["f.toml: mapper.passage_width: expected a number > 0; found -0.6",
+                                         "f.toml: mapper.max_viewpoints: expected an integer > 0; found 0"]
+    assert parse({"mapper": {"laser_x": -0.1, "laser_theta": -0.05}}).mapper_params().laser_x == -0.1
+
+
 def test_an_integer_is_accepted_for_a_float_parameter():
     assert parse({"mapper": {"passage_width": 1}}).mapper_params().passage_width == 1.0
 
