@@ -239,7 +239,14 @@ class Config:
         cls = _params_class()
         if cls is None:
             raise ImportError("the mapper has no MapperParams (mapper/params.py)")
-        return cls(**dict(self.mapper))
+        overrides = dict(self.mapper)
+        if "cycles" in overrides:
+            from mapper.cycle_params import CycleParams
+
+            cycles = dict(overrides["cycles"])
+            base = CycleParams.paper() if cycles.pop("paper", False) else CycleParams()
+            overrides["cycles"] = base.replace(**cycles)
+        return cls(**overrides)
 
 
 _SECTION_TYPES = {
@@ -272,12 +279,14 @@ def _mapper_fields() -> dict[str, Any] | None:
 _SIGNED_MAPPER_FIELDS = frozenset({"laser_x", "laser_y", "laser_theta"})
 
 
-def _check_mapper(table: dict, problems: list[str]) -> tuple[tuple[str, Any], ...]:
-    known = _mapper_fields()
+def _check_fields(prefix: str, table: dict, known: dict[str, Any] | None, what: str, problems: list[str],
+                  strictly_positive: bool) -> list[tuple[str, Any]]:
+    """Overrides of a parameters dataclass (``known``: its defaults by field name), each checked
+    against its default's type; numbers must be > 0 (``strictly_positive``) or >= 0."""
     out = []
     for name, v in table.items():
         if known is not None and name not in known:
-            problems.append(f"mapper.{name}: expected a MapperParams field ({', '.join(sorted(known))}); "
+            problems.append(f"{prefix}.{name}: expected a {what} field ({', '.join(sorted(known))}); "
                             f"found an unknown key")
             continue
         default = known.get(name) if known else None
@@ -290,17 +299,37 @@ def _check_mapper(table: dict, problems: list[str]) -> tuple[tuple[str, Any], ..
                 ok = False
             expected = "an integer" if isinstance(default, int) else "a number"
             if name not in _SIGNED_MAPPER_FIELDS:
-                ok = ok and v > 0
-                expected += " > 0"
+                ok = ok and (v > 0 if strictly_positive else v >= 0)
+                expected += " > 0" if strictly_positive else " >= 0"
             v = float(v) if ok and isinstance(default, float) else v
         elif isinstance(default, str):
             ok, expected = isinstance(v, str), "a string"
         else:
             ok, expected = not isinstance(v, dict), "a value"
         if not ok:
-            problems.append(f"mapper.{name}: expected {expected}; found {_show(v)}")
+            problems.append(f"{prefix}.{name}: expected {expected}; found {_show(v)}")
         else:
             out.append((name, v))
+    return out
+
+
+def _check_mapper(table: dict, problems: list[str]) -> tuple[tuple[str, Any], ...]:
+    known = _mapper_fields()
+    cycles = table.get("cycles")
+    rest = {k: v for k, v in table.items() if k != "cycles" or known is None}
+    out = _check_fields("mapper", rest, known, "MapperParams", problems, strictly_positive=True)
+    if cycles is not None and known is not None:
+        if not isinstance(cycles, dict):
+            problems.append(f"mapper.cycles: expected a table [mapper.cycles] of CycleParams fields; "
+                            f"found {_show(cycles)}")
+        else:
+            from mapper.cycle_params import CycleParams
+
+            fields = {f.name: getattr(CycleParams(), f.name) for f in dataclasses.fields(CycleParams)}
+            fields["paper"] = False  # start from CycleParams.paper(): the paper's method alone
+            # 0 is meaningful here (a margin or a search radius of 0 is the paper's test)
+            out.append(("cycles", tuple(_check_fields("mapper.cycles", cycles, fields, "CycleParams",
+                                                      problems, strictly_positive=False))))
     return tuple(out)
 
 

@@ -120,6 +120,19 @@ def test_mapper_sizes_must_be_positive_but_the_laser_offsets_may_be_negative():
     assert parse({"mapper": {"laser_x": -0.1, "laser_theta": -0.05}}).mapper_params().laser_x == -0.1
 
 
+def test_cycle_closing_is_configured_in_a_mapper_cycles_table(tmp_path):
+    p = tmp_path / "asrmap.toml"
+    p.write_text("[mapper.cycles]\npaper = true\ncrosscheck_margin = 0.1\n")
+    cycles = load(p).mapper_params().cycles
+    assert not (cycles.verify or cycles.hindsight or cycles.realign) and cycles.crosscheck_margin == 0.1
+    assert parse({}).mapper_params().cycles.verify  # the extensions are on by default
+    with pytest.raises(ConfigError) as e:
+        parse({"mapper": {"cycles": {"verfy": True, "search_radius": -1}}}, "f.toml")
+    lines = str(e.value).splitlines()
+    assert lines[0].startswith("f.toml: mapper.cycles.verfy: expected a CycleParams field (")
+    assert lines[1] == "f.toml: mapper.cycles.search_radius: expected a number >= 0; found -1"
+
+
 def test_an_integer_is_accepted_for_a_float_parameter():
     assert parse({"mapper": {"passage_width": 1}}).mapper_params().passage_width == 1.0
 
