@@ -166,6 +166,10 @@ class Evaluation:
     heading_error_before: float
     heading_error_after: float
     false_pairs: tuple[tuple[int, int], ...] = ()
+    revisit_drift: tuple[float, ...] = ()
+    """m, one per revisit: how far the dead-reckoned ASR frames place the revisiting ASR from the
+    earlier one, against the truth (the smallest over the earlier ASRs it overlaps). The cycle check
+    compares ASRs placed this far off: beyond an ASR's size, no centre crosscheck can pass."""
 
     @property
     def precision(self) -> float:
@@ -245,6 +249,8 @@ def evaluate(
         links.setdefault(c["asr"], set()).add(c["matches"])
         links.setdefault(c["matches"], set()).add(c["asr"])
     revisits = detected = 0
+    drift: list[float] = []
+    before_of = origins_before or {a["id"]: tuple(a["origin"]) for a in asrs}
     tree = shapely.STRtree([polys[k] for k in ids])
     for n, i in enumerate(ids):
         earlier = {
@@ -255,6 +261,7 @@ def evaluate(
         if not earlier:
             continue
         revisits += 1
+        drift.append(min(_placement_error(before_of, frames, j, i) for j in earlier))
         targets = set().union(*(same_place(j) for j in earlier))
         if any(links.get(k, set()) & targets for k in ids[n : n + 3]):
             detected += 1
@@ -276,4 +283,11 @@ def evaluate(
         heading_error_before=hb,
         heading_error_after=ha,
         false_pairs=fp,
+        revisit_drift=tuple(drift),
     )
+
+
+def _placement_error(est: dict[int, Pose], true: dict[int, Pose], j: int, i: int) -> float:
+    """m: the error of ASR i's frame seen from ASR j's, estimated against true."""
+    e, t = between(tuple(est[j]), tuple(est[i])), between(true[j], true[i])
+    return math.hypot(e[0] - t[0], e[1] - t[1])

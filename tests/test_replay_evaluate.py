@@ -22,9 +22,8 @@ def test_truth_between_samples_is_carried_by_the_odometry_increments():
     assert true_pose(truth, odo, 0.0) == pytest.approx((5.0, 5.0, math.pi / 2))
 
 
-def _loop(params):
+def _loop(params, per_step=(0.15, -0.1, 0.02)):
     gm = GlobalMap(params)
-    per_step = (0.15, -0.1, 0.02)
     drive(gm, LOOP, per_step=per_step)
     frames = [f for _, f, _ in LOOP]
     times = [float(k) for k in range(1, len(LOOP) + 1)]
@@ -42,6 +41,15 @@ def test_a_loop_scores_full_precision_and_recall(params):
     assert ev.precision == 1.0
     assert (ev.revisits, ev.detected, ev.recall) == (2, 2, 1.0)
     assert ev.evaluated == ev.asrs == 6
+
+
+def test_revisit_drift_is_how_far_the_dead_reckoned_frames_misplace_each_revisit():
+    gm, truth, odo, entered = _loop(CycleParams.paper(), per_step=(0.0, 0.0, 0.0))
+    ev = evaluate(document_of(gm), truth, odo, entered, gm.odometry_origin)
+    assert len(ev.revisit_drift) == ev.revisits == 2 and max(ev.revisit_drift) < 1e-9
+    gm, truth, odo, entered = _loop(CycleParams.paper())
+    ev = evaluate(document_of(gm), truth, odo, entered, gm.odometry_origin)
+    assert len(ev.revisit_drift) == 2 and min(ev.revisit_drift) > 0.1  # 0.15 m, 0.02 rad per ASR
 
 
 def test_realignment_lowers_the_frame_error_and_without_it_nothing_changes():

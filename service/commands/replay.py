@@ -9,6 +9,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from mapper.cycle_params import CycleParams
 from service.argtypes import speed
 
@@ -72,6 +74,14 @@ def _fmt(x: float, pct: bool = False) -> str:
     return f"{100 * x:.1f}%" if pct else f"{x:.3f}"
 
 
+def _drift_line(drift) -> str:
+    if not drift:
+        return "revisit drift: no revisits"
+    d = np.asarray(drift)
+    return (f"revisit drift (dead-reckoned ASR frames against truth): median {np.median(d):.2f} m, "
+            f"90% {np.percentile(d, 90):.2f} m, within 2 m {np.mean(d <= 2.0):.0%}")
+
+
 def summary(res) -> list[str]:
     """The figures of a replay, one per line."""
     doc = res.document
@@ -90,6 +100,7 @@ def summary(res) -> list[str]:
             + (f", false: {list(ev.false_pairs)}" if ev.false_pairs else ""),
             f"revisits: {ev.revisits}, detected: {ev.detected}, recall: {_fmt(ev.recall, True)} "
             f"({ev.evaluated} of {ev.asrs} ASRs inside the truth's time span)",
+            _drift_line(ev.revisit_drift),
             f"ASR frame error (rigid fit, RMS): before realignment {ev.frame_error_before:.2f} m / "
             f"{ev.heading_error_before:.3f} rad, after {ev.frame_error_after:.2f} m / "
             f"{ev.heading_error_after:.3f} rad",
