@@ -129,3 +129,33 @@ def test_asrmap_simulate_fast_reports_its_real_time_factor(tmp_path, capsys):
     # The 10x goal is a figure (README, measured by this command), not a timed assertion.
     print(f"\nasrmap simulate --fast: {factor:.1f}x real time")
     assert factor > 0 and not math.isnan(factor)
+
+
+def test_a_simulation_is_followed_live_by_asrmap_monitor_in_another_process(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from service.bench.service import free_port
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    ep = f"tcp/127.0.0.1:{free_port()}"
+
+    def cli(*args: str) -> subprocess.Popen:
+        return subprocess.Popen([sys.executable, "-m", "service.cli", *args], cwd=root, text=True,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+    mon = cli("monitor", "--connect", ep, "--robot", "simbot")
+    sim = cli("simulate", "--world", "office", "--fast", "5", "--duration", "30", "--listen", ep,
+              "--robot", "simbot", "--svg", str(tmp_path / "m.svg"), "--json", str(tmp_path / "m.json"))
+    try:
+        _, sim_err = sim.communicate(timeout=120)
+    finally:
+        mon.send_signal(signal.SIGINT)
+        mon_out, mon_err = mon.communicate(timeout=20)
+    assert sim.returncode == 0, sim_err[-2000:]
+    lines = mon_out.splitlines()
+    assert "simbot  alive" in lines and "simbot  gone" in lines, mon_out[-2000:] + mon_err[-2000:]
+    assert any(line.startswith("simbot  asr_created") for line in lines)
+    assert any(line.startswith("simbot  status ") for line in lines)

@@ -43,6 +43,8 @@ def add_arguments(p) -> None:
                    help="the map document, asrmap/map/1 (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the range noise (default: 0)")
     p.add_argument("--robot", default="pioneer", help="robot name: the Zenoh key prefix asrmap/<robot>/")
+    p.add_argument("--listen", action="append", metavar="ENDPOINT",
+                   help="Zenoh endpoint the service listens on, repeatable (default: tcp/127.0.0.1:7447)")
     p.add_argument("--state-dir", default=None, metavar="DIR",
                    help="where the service keeps its map store (default: a temporary directory)")
 
@@ -75,7 +77,7 @@ def run(args) -> int:
         if speed <= 0:
             raise ValueError(f"--fast {speed:g}: the factor must be positive")
         sim = StackSim(world, params, speed=speed, state_dir=args.state_dir, robot_name=args.robot,
-                       progress=show)
+                       progress=show, listen=tuple(args.listen) if args.listen else None)
         _stop_on_signals(sim)
         summary = sim.run()
     doc = sim.document

@@ -425,14 +425,16 @@ class StackSim:
 
     ``speed``: simulated seconds per wall second. ``state_dir``: where the service keeps its map
     store (a temporary directory by default; a simulation always starts a new map). Zenoh: the
-    service's default ``[zenoh]`` configuration, keys under ``asrmap/<robot_name>/``, so
-    ``asrmap monitor --robot <robot_name>`` follows the run.
+    service's default ``[zenoh]`` configuration (or ``listen``: the endpoints to listen on), keys
+    under ``asrmap/<robot_name>/``, so ``asrmap monitor --robot <robot_name>`` follows the run.
     """
 
     def __init__(self, world: World, params: SimParams | None = None, *, speed: float = 1.0,
                  state_dir: str | None = None, robot_name: str = "pioneer",
-                 progress: Callable[[float, str, Any], None] | None = None) -> None:
+                 progress: Callable[[float, str, Any], None] | None = None,
+                 listen: tuple[str, ...] | None = None) -> None:
         self.world = world
+        self.listen = listen
         self.p = params or SimParams()
         self.speed = float(speed)
         self.robot_name = robot_name
@@ -470,6 +472,8 @@ class StackSim:
                           resolution=self.p.resolution),
             store=replace(cfg.store, state_dir=self.state_dir),
         )
+        if self.listen is not None:
+            cfg = replace(cfg, zenoh=replace(cfg.zenoh, listen=tuple(self.listen)))
         return cfg
 
     def _laser_baud(self) -> int:
