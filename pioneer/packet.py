@@ -16,6 +16,10 @@ MIN_COUNT = 3  # one data byte (the command or packet type) plus the checksum
 # The P2 manual: P2OS ignores packets whose byte count exceeds 200 (ROS-p2os refuses more than 198
 # bytes in total). ARIA accepts any count; a robot-side reader must not, a host-side one need not.
 MAX_COUNT = 200
+#: s. A packet goes out in one piece: a partial packet with no byte for this long never completes
+#: (its header was line noise whose byte count swallowed what followed). Three FTDI latency
+#: periods (16 ms each by default) of silence.
+STALL_S = 0.05
 
 
 # One big-endian pair reader per data length (at most 198 bytes).
@@ -66,10 +70,11 @@ class PacketReader:
     cut short). A header whose byte count is impossible (< 3 or > ``max_count``) or whose checksum
     fails is dropped by skipping only its first byte, so an intact packet that the bad one seemed
     to swallow is still found. Counters: ``packets_ok``, ``bad_checksums``, ``bad_counts``,
-    ``bytes_skipped`` (every byte not delivered inside an intact packet).
+    ``bytes_skipped`` (every byte not delivered inside an intact packet), ``stalled`` (partial
+    packets given up by :meth:`expire`).
     """
 
-    __slots__ = ("_buf", "bad_checksums", "bad_counts", "bytes_skipped", "max_count", "packets_ok")
+    __slots__ = ("_buf", "bad_checksums", "bad_counts", "bytes_skipped", "max_count", "packets_ok", "stalled")
 
     def __init__(self, max_count: int = MAX_COUNT) -> None:
         self._buf = b""
@@ -78,6 +83,7 @@ class PacketReader:
         self.bad_checksums = 0
         self.bad_counts = 0
         self.bytes_skipped = 0
+        self.stalled = 0
 
     def feed(self, data: bytes) -> list[Packet]:
         """Append ``data`` and return every packet completed by it, in order."""
@@ -119,6 +125,21 @@ class PacketReader:
         self._buf = buf[i:]
         return out
 
+    def expire(self) -> list[Packet]:
+        """The line fell silent with a packet pending (see :data:`STALL_S`): that header was noise.
+
+        Its first byte is skipped and the rest re-read, so intact packets its bogus byte count
+        swallowed (a client's SYNC0 after a burst of garbage) are delivered; any other partial
+        packet in the rest is dead too and goes the same way. Returns the packets found.
+        """
+        out: list[Packet] = []
+        while self._buf:
+            rest, self._buf = self._buf[1:], b""
+            self.bytes_skipped += 1
+            self.stalled += 1
+            out += self.feed(rest)
+        return out
+
     def clear(self) -> None:
         """Forget a partly received packet (the port was flushed or reopened); counters stay."""
         self._buf = b""
@@ -134,4 +155,5 @@ class PacketReader:
             "bad_checksums": self.bad_checksums,
             "bad_counts": self.bad_counts,
             "bytes_skipped": self.bytes_skipped,
+            "stalled": self.stalled,
         }

@@ -199,3 +199,13 @@ def test_reader_after_a_truncated_packet_delivers_every_following_packet(damaged
     got = reader.feed(stream + b"".join(packets) + _FLUSH)
     assert [p.to_bytes() for p in got[len(got) - len(packets):]] == packets
     assert reader.pending == 0
+
+
+def test_a_stalled_bogus_header_is_expired_and_the_packets_it_swallowed_are_delivered():
+    r = PacketReader()
+    sync0 = frame(bytes([0]))
+    assert r.feed(b"\xfa\xfb\xc8\x01" + sync0 + sync0) == []  # waiting for 200 bytes that never come
+    assert r.pending == 4 + 2 * len(sync0)
+    assert [p.to_bytes() for p in r.expire()] == [sync0, sync0]
+    assert r.pending == 0 and r.counters()["stalled"] >= 1
+    assert r.expire() == []

@@ -85,6 +85,15 @@ def test_sync0_and_sync1_are_echoed_and_sync2_names_the_robot(pty_pair, client):
         assert client.next_packet().to_bytes() == sync2_reply("MockBot", "Pioneer", "p2dx")
 
 
+def test_noise_ending_in_a_header_with_a_large_count_does_not_swallow_the_next_client(pty_pair, client):
+    with _emulator(pty_pair):
+        # FA FB C8: "200 bytes follow". A real line falls silent instead; the client's SYNC0s that
+        # come next must not be taken for the rest of that packet.
+        client.send(b"WMS2\r\xfa\xfb\xc8\x01\x02")
+        time.sleep(0.2)
+        client.handshake()
+
+
 def test_no_sip_is_sent_before_open(pty_pair, client):
     with _emulator(pty_pair):
         client.handshake()
