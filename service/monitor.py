@@ -59,6 +59,8 @@ class Monitor:
         self.robots: dict[str, RobotView] = {}
         self._q: queue.Queue = queue.Queue(maxsize=10000)
         self.dropped = 0
+        self.bad_payloads = 0
+        self._warned: set[tuple[str, str]] = set()
         try:
             base = f"{PREFIX}/{robot}"
             self._decls = [
@@ -93,12 +95,39 @@ class Monitor:
     # --- the caller's thread -----------------------------------------------------------------------
 
     def fetch_map(self, robot: str, timeout: float = 2.0) -> dict[str, Any] | None:
-        """The robot's map document from its queryable, or None when it does not answer."""
+        """The robot's map document from its queryable, or None when it does not answer (or answers
+        with something that is not an ``asrmap/map/1`` document: warned about and counted)."""
         for r in self.session.get(f"{PREFIX}/{robot}/map", timeout=timeout):
             if r.ok:
-                return json.loads(r.ok.payload.to_bytes())
+                doc = self._decode(robot, "map", r.ok.payload.to_bytes())
+                if doc is not None and isinstance(doc.get("asrs"), list):
+                    return doc
+                if doc is not None:
+                    self._bad(robot, "map", "a map document without a list of ASRs")
+                return None
             log.warning("map query to %s failed: %s", robot, r.err.payload.to_string())
         return None
+
+    def _bad(self, robot: str, kind: str, what: str) -> None:
+        """A payload that is not what the key promises (another program, another version): skipped,
+        counted, and warned about once per robot and kind."""
+        self.bad_payloads += 1
+        if (robot, kind) not in self._warned:
+            self._warned.add((robot, kind))
+            log.warning("%s sent a %s that is %s: skipped (further ones are counted in silence)", robot,
+                        kind, what)
+
+    def _decode(self, robot: str, kind: str, payload: bytes) -> dict[str, Any] | None:
+        """The JSON object of an ``asrmap/<kind>/1`` payload, or None (see :meth:`_bad`)."""
+        try:
+            data = json.loads(payload)
+        except ValueError:
+            self._bad(robot, kind, "not JSON")
+            return None
+        if not isinstance(data, dict) or data.get("schema") != f"{PREFIX}/{kind}/1":
+            self._bad(robot, kind, f"not an {PREFIX}/{kind}/1 object")
+            return None
+        return data
 
     def poll(self, timeout: float = 0.2) -> list[Update]:
         """Updates that arrived within ``timeout`` seconds (at least one waited for, then all queued)."""
@@ -128,10 +157,8 @@ class Monitor:
         if kind == "alive":
             view.alive = True
             return [Update("alive", robot), *self._refresh(view)]
-        try:
-            data = json.loads(payload)
-        except ValueError:
-            log.warning("%s sent a %s that is not JSON", robot, kind)
+        data = self._decode(robot, kind, payload)
+        if data is None:
             return []
         if kind == "status":
             view.status = data
@@ -140,6 +167,9 @@ class Monitor:
             view.changed = True
             return []  # ~10 Hz: kept for pictures, not printed
         elif kind == "asr":
+            if not isinstance(data.get("id"), int):
+                self._bad(robot, kind, "an ASR without an integer id")
+                return []
             if view.doc is not None:
                 data.pop("schema", None)
                 asrs = [a for a in view.doc["asrs"] if a["id"] != data["id"]]
@@ -193,15 +223,20 @@ def map_summary(doc: dict[str, Any]) -> str:
             f"{len(cycles)} cycles ({accepted} accepted)")
 
 
+def _table(v: Any) -> dict[str, Any]:
+    """``v`` if it is a JSON object, else an empty one (a status from another version)."""
+    return v if isinstance(v, dict) else {}
+
+
 def status_line(st: dict[str, Any]) -> str:
     parts = []
     for dev in ("pioneer", "laser"):
-        d = st.get(dev) or {}
+        d = _table(st.get(dev))
         faults = f"({d['faults']} faults)" if d.get("faults") else ""
         parts.append(f"{dev}={d.get('link', '?')}{faults}")
-    rates = st.get("rates") or {}
+    rates = _table(st.get("rates"))
     parts += [f"{k}={_fmt(v)}/s" for k, v in rates.items()]
-    timing = st.get("timing") or {}
+    timing = _table(st.get("timing"))
     if timing.get("latency") is not None:
         parts.append(f"latency={timing['latency'] * 1000:.0f} ms")
     if timing.get("realtime_factor") is not None:
@@ -212,7 +247,7 @@ def status_line(st: dict[str, Any]) -> str:
         parts.append(f"skew={timing['skew'] * 1000:.0f} ms")
     if st.get("battery") is not None:
         parts.append(f"battery={_fmt(st['battery'])} V")
-    motors = st.get("motors") or {}
+    motors = _table(st.get("motors"))
     if motors.get("e_stop"):
         parts.append("E-STOP")
     elif motors.get("enabled") is False:
@@ -222,7 +257,7 @@ def status_line(st: dict[str, Any]) -> str:
         parts.append(f"asrs={st['asrs']}")
     if st.get("waiting_for"):
         parts.append(f"waiting for {st['waiting_for']}")
-    stop = st.get("last_stop") or {}
+    stop = _table(st.get("last_stop"))
     if stop.get("reason"):
         parts.append(f"last stop: {stop['reason']}")
     parts += [f"ALERT {a}" for a in motors.get("alerts") or ()]
@@ -236,7 +271,10 @@ def format_update(u: Update) -> str:
     if u.kind == "map":
         return f"{u.robot}  map: {map_summary(u.data)}"
     if u.kind == "status":
-        return f"{u.robot}  status {status_line(u.data)}"
+        try:
+            return f"{u.robot}  status {status_line(u.data)}"
+        except (TypeError, ValueError, KeyError) as exc:  # a field of another type (another version)
+            return f"{u.robot}  status (unreadable: {type(exc).__name__}: {exc})"
     fields = " ".join(f"{k}={_fmt(v)}" for k, v in u.data.items() if k not in ("schema", "event"))
     return f"{u.robot}  {u.data.get('event', u.kind)} {fields}"
 
@@ -273,7 +311,13 @@ class SvgWriter:
             out = self.target(view.name)
             tmp = out.with_name(f".{out.name}.tmp")
             title = f"{view.name}: {map_summary(view.doc)}"
-            tmp.write_text(render_svg(view.doc, title), encoding="utf-8")
+            try:
+                svg = render_svg(view.doc, title)
+            except Exception as exc:  # a malformed ASR from the robot must not end the watching
+                log.warning("cannot draw %s's map (%s: %s); the picture is not updated", view.name,
+                            type(exc).__name__, exc)
+                continue
+            tmp.write_text(svg, encoding="utf-8")
             os.replace(tmp, out)
             written.append(out)
         return written

@@ -11,7 +11,7 @@ import time
 from service.bench.service import free_port
 from service.bus import Bus
 from service.config import ZenohConfig
-from service.monitor import Monitor, Update, format_update, status_line
+from service.monitor import Monitor, SvgWriter, Update, format_update, status_line
 from tests.test_bus import DOC
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -135,3 +135,38 @@ def test_monitor_once_writes_an_svg_of_each_robot(tmp_path):
     assert stdout.splitlines()[-1] == f"wrote {tmp_path / 'map-r1.svg'}", err
     root = ET.parse(tmp_path / "map-r1.svg").getroot()
     assert root.tag.endswith("svg") and "r1: 2 ASRs, 1 links" in (tmp_path / "map-r1.svg").read_text()
+
+
+def test_payloads_that_are_not_what_their_key_promises_are_skipped_counted_and_survived(tmp_path, caplog):
+    import json
+
+    import zenoh
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    rogue = zenoh.open(zenoh.Config.from_json5(json.dumps({
+        "mode": "peer", "listen": {"endpoints": [ep]},
+        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}}})))
+    token = rogue.liveliness().declare_token("asrmap/rogue/alive")
+    queryable = rogue.declare_queryable("asrmap/rogue/map", lambda q: q.reply(q.key_expr, b"\xff not json"))
+    svg = SvgWriter(str(tmp_path / "{robot}.svg"), period=0.0)
+    try:
+        with Monitor([ep]) as mon:
+            seen = _until(mon, lambda s: any(u.kind == "alive" for u in s))
+            assert mon.robots["rogue"].doc is None  # its map answer was not a map
+            mon.robots["rogue"].doc = {"schema": "asrmap/map/1", "asrs": [], "links": [], "cycles": []}
+            for key, payload in [("status", b"garbage"), ("pose", b"[]"), ("event", b'{"event": 5}'),
+                                 ("asr/1", b'{"schema": "asrmap/asr/1", "id": "x"}'),
+                                 ("asr/2", b'{"schema": "asrmap/asr/1", "id": 2, "boundary": 3}'),
+                                 ("status", b'{"schema": "asrmap/status/1", "timing": {"latency": "x"}}'),
+                                 ("event", b'{"schema": "asrmap/event/1", "event": "recovered"}')]:
+                rogue.put(f"asrmap/rogue/{key}", payload)
+            seen = _until(mon, lambda s: any(u.kind == "event" for u in s))
+            lines = [format_update(u) for u in seen]
+            svg.update(mon)  # an ASR it cannot draw: warned, the monitor goes on
+    finally:
+        queryable.undeclare()
+        token.undeclare()
+        rogue.close()
+    assert "rogue  recovered " in lines and any("status (unreadable" in line for line in lines)
+    assert mon.bad_payloads == 5  # the map answer, status, pose, the schema-less event, the id-less ASR
+    assert "cannot draw rogue's map" in caplog.text
