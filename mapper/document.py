@@ -79,7 +79,10 @@ def _need(d: dict, key: str, where: str):
 def asr_from_dict(d: dict[str, Any]) -> ASR:
     """Read one ASR record; raises :class:`DocumentError` naming a missing or bad field."""
     where = f"asr {d.get('id', '?')}"
-    boundary = np.array(_need(d, "boundary", where), dtype=float).reshape(-1, 2)
+    try:
+        boundary = np.array(_need(d, "boundary", where), dtype=float).reshape(-1, 2)
+    except (TypeError, ValueError):
+        raise DocumentError(f"{where}: boundary: expected [[x, y], ...] in metres") from None
     edges = list(_need(d, "edges", where))
     if len(edges) != len(boundary):
         raise DocumentError(f"{where}: {len(edges)} edge labels for {len(boundary)} boundary vertices")
@@ -133,27 +136,46 @@ def from_document(doc: dict[str, Any]) -> MapDocument:
     if not isinstance(doc, dict) or doc.get("schema") != SCHEMA:
         got = doc.get("schema") if isinstance(doc, dict) else type(doc).__name__
         raise DocumentError(f"not a map document: schema {got!r}, expected {SCHEMA!r}")
-    asrs = [asr_from_dict(a) for a in doc.get("asrs", [])]
+    asrs = [_record(f"asrs[{i}]", asr_from_dict, a) for i, a in enumerate(_list(doc, "asrs"))]
     ids = {a.id for a in asrs}
-    links = []
-    for ln in doc.get("links", []):
-        exit_id = None if ln["exit"] is None else str(ln["exit"])  # a duplicate entered by an unseen exit
-        link = Link(int(ln["from"]), exit_id, int(ln["to"]), ln.get("via"), bool(ln.get("oneway", False)))
-        if link.src not in ids or link.dst not in ids:
-            raise DocumentError(f"link {ln}: names an ASR the document does not hold")
-        links.append(link)
-    cycles = [
-        CycleRecord(
-            float(c["time"]),
-            int(c["asr"]),
-            int(c["matches"]),
-            bool(c["accepted"]),
-            float(c["iou"]),
-            str(c["reason"]),
-        )
-        for c in doc.get("cycles", [])
-    ]
+    links = [_record(f"links[{i}]", _link_from_dict, ln) for i, ln in enumerate(_list(doc, "links"))]
+    for ln in links:
+        if ln.src not in ids or ln.dst not in ids:
+            raise DocumentError(f"link {ln.src} -> {ln.dst}: names an ASR the document does not hold")
+    cycles = [_record(f"cycles[{i}]", _cycle_from_dict, c) for i, c in enumerate(_list(doc, "cycles"))]
     return MapDocument(str(doc.get("robot", "pioneer")), asrs, links, cycles)
+
+
+def _list(doc: dict[str, Any], key: str) -> list:
+    v = doc.get(key, [])
+    if not isinstance(v, list):
+        raise DocumentError(f"{key}: expected a list, found {type(v).__name__}")
+    return v
+
+
+def _record(where: str, parse, d: Any):
+    """``parse(d)``, with any way a record can be malformed (a missing field, a string where a number
+    belongs) reported as one :class:`DocumentError` naming the record."""
+    if not isinstance(d, dict):
+        raise DocumentError(f"{where}: expected an object, found {type(d).__name__}")
+    try:
+        return parse(d)
+    except DocumentError:
+        raise
+    except KeyError as exc:
+        raise DocumentError(f"{where}: missing field {exc}") from None
+    except (TypeError, ValueError, IndexError, AttributeError) as exc:
+        raise DocumentError(f"{where}: {exc}") from None
+
+
+def _link_from_dict(ln: dict[str, Any]) -> Link:
+    exit_id = None if ln["exit"] is None else str(ln["exit"])  # a duplicate entered by an unseen exit
+    return Link(int(ln["from"]), exit_id, int(ln["to"]), ln.get("via"), bool(ln.get("oneway", False)))
+
+
+def _cycle_from_dict(c: dict[str, Any]) -> CycleRecord:
+    return CycleRecord(float(c["time"]), int(c["asr"]), int(c["matches"]), bool(c["accepted"]),
+                       float(c["iou"]), str(c["reason"]))
 
 
 def document_of(gm: GlobalMap, robot: str = "pioneer") -> dict[str, Any]:

@@ -2,6 +2,7 @@
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -78,6 +79,23 @@ def test_a_document_of_another_schema_is_refused_with_a_reason():
     doc = document_of(_loop_map())
     del doc["asrs"][0]["boundary"]
     with pytest.raises(DocumentError, match="boundary"):
+        from_document(doc)
+
+
+@pytest.mark.parametrize(("damage", "message"), [
+    (lambda d: d.update(asrs="x"), "asrs: expected a list, found str"),
+    (lambda d: d["asrs"].__setitem__(0, 3), "asrs[0]: expected an object, found int"),
+    (lambda d: d["asrs"][1].update(boundary=3), "asr 2: boundary: expected [[x, y], ...] in metres"),
+    (lambda d: d["asrs"][1].update(origin="x"), "asrs[1]: could not convert string to float"),
+    (lambda d: d["asrs"][0]["exits"][0].pop("b"), "asrs[0]: missing field 'b'"),
+    (lambda d: d["links"][0].pop("exit"), "links[0]: missing field 'exit'"),
+    (lambda d: d["links"][0].update({"from": None}), "links[0]: int() argument must be"),
+    (lambda d: d["cycles"].insert(0, 3), "cycles[0]: expected an object, found int"),
+])
+def test_a_damaged_document_is_one_document_error_naming_the_record(damage, message):
+    doc = json.loads(json.dumps(document_of(_loop_map())))
+    damage(doc)
+    with pytest.raises(DocumentError, match=re.escape(message)):
         from_document(doc)
 
 
