@@ -106,14 +106,18 @@ def _shortest(
     clen, cq, ctq = length[g_, cand], q[g_, cand], tq[g_, cand]
     # the surfaces strictly between P and Q (window positions before Q's) must lie beyond the line
     # PQ as seen from the laser
-    inside = (off[None, None, :] < cand[..., None]) & valid[:, None, :]  # (G, C, W)
-    d = cq - pp[:, None, :]  # (G, C, 2) line direction
-    dn = np.maximum(np.hypot(d[..., 0], d[..., 1]), 1e-9)
-    sgn = np.where(_cross(d, o - pp[:, None, :]) >= 0, 1.0, -1.0)  # the laser's side of the line
-    ends = segw.reshape(len(gap), 1, 2 * w, 2) - pp[:, None, None, :]  # (G, 1, 2W, 2)
-    side_e = _cross(d[:, :, None, :], ends) / dn[..., None]  # (G, C, 2W)
-    in_front = (side_e * sgn[..., None] > p.visibility_tolerance).reshape(*side_e.shape[:2], w, 2).any(-1)
-    clen = np.where((inside & in_front).any(-1), np.inf, clen)
+    # (window positions at or beyond the farthest candidate are never between P and Q: the test
+    # covers only the first wv positions)
+    wv = int(cand.max()) if cand.size else 0
+    if wv > 0:
+        inside = (off[None, None, :wv] < cand[..., None]) & valid[:, None, :wv]  # (G, C, wv)
+        d = cq - pp[:, None, :]  # (G, C, 2) line direction
+        dn = np.maximum(np.hypot(d[..., 0], d[..., 1]), 1e-9)
+        sgn = np.where(_cross(d, o - pp[:, None, :]) >= 0, 1.0, -1.0)  # the laser's side of the line
+        ends = segw[:, :wv].reshape(len(gap), 1, 2 * wv, 2) - pp[:, None, None, :]  # (G, 1, 2 wv, 2)
+        side_e = _cross(d[:, :, None, :], ends) / dn[..., None]  # (G, C, 2 wv)
+        in_front = (side_e * sgn[..., None] > p.visibility_tolerance).reshape(len(gap), -1, wv, 2).any(-1)
+        clen = np.where((inside & in_front).any(-1), np.inf, clen)
     pick = np.argmin(clen, axis=1)
     g1 = np.arange(len(gap))
     best = kw[g1, cand[g1, pick]]
