@@ -46,16 +46,26 @@ _SAMPLES = np.linspace(0.1, 0.9, 5)  # fractions along an exit tested for being 
 
 
 def _pairs_within(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.ndarray, ...]:
-    """The (point, segment) pairs closer than ``tol`` (m): point and segment indices and distances.
+    """The (point, segment) pairs closer than ``tol`` (m): point and segment indices and distances
+    (in no particular order).
 
-    A bounding-box test over all pairs (four comparisons each) picks the few candidates whose exact
-    distance is then computed, so the cost stays a handful of numpy operations whatever the sizes
+    Candidates are the points inside each segment's bounding box grown by ``tol``: the points sorted
+    by x, each box's x-range is two binary searches, and only the pairs in those ranges are tested
+    on y and then by exact distance. The cost follows the candidates, not the product of the sizes
     of an ASR's boundary and label store.
     """
     lo = seg.min(axis=1) - tol  # (S, 2)
     hi = seg.max(axis=1) + tol
-    x, y = p[:, 0:1], p[:, 1:2]
-    pi, si = np.nonzero((x >= lo[:, 0]) & (x <= hi[:, 0]) & (y >= lo[:, 1]) & (y <= hi[:, 1]))
+    order = np.argsort(p[:, 0], kind="stable")
+    xs = p[order, 0]
+    i0 = np.searchsorted(xs, lo[:, 0], side="left")
+    n = np.searchsorted(xs, hi[:, 0], side="right") - i0
+    n = np.maximum(n, 0)
+    si = np.repeat(np.arange(len(seg)), n)
+    pi = order[np.arange(len(si)) - np.repeat(np.cumsum(n) - n - i0, n)]
+    y = p[pi, 1]
+    ok = (y >= lo[si, 1]) & (y <= hi[si, 1])
+    pi, si = pi[ok], si[ok]
     q, _ = closest_on_segments(p[pi], seg[si])
     d = np.hypot(*(q - p[pi]).T)
     near = d < tol
@@ -68,11 +78,23 @@ def _nearest_segment(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.nda
     pi, si, d = _pairs_within(p, seg, tol)
     e = np.zeros(len(p), dtype=int)
     dist = np.full(len(p), np.inf)
-    order = np.lexsort((d, pi))
+    order = np.lexsort((si, d, pi))
     first = np.append(True, np.diff(pi[order]) != 0)
     k = order[first]
     e[pi[k]], dist[pi[k]] = si[k], d[k]
     return e, dist
+
+
+def _along_pairs(
+    mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The (edge, segment) index pairs where an edge (midpoint, unit direction) lies along a segment:
+    within ``tol`` (m) and parallel to within 20°."""
+    pi, si, _ = _pairs_within(mid, seg, tol)
+    sv = seg[si, 1] - seg[si, 0]
+    sv = sv / np.maximum(np.hypot(sv[:, 0], sv[:, 1]), 1e-12)[:, None]
+    par = np.abs(np.einsum("ij,ij->i", u[pi], sv)) > _PARALLEL
+    return pi[par], si[par]
 
 
 def _along(mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float) -> np.ndarray:
@@ -80,11 +102,7 @@ def _along(mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float) -> np.nd
     out = np.zeros(len(mid), dtype=bool)
     if len(seg) == 0 or len(mid) == 0:
         return out
-    pi, si, _ = _pairs_within(mid, seg, tol)
-    sv = seg[si, 1] - seg[si, 0]
-    sv = sv / np.maximum(np.hypot(sv[:, 0], sv[:, 1]), 1e-12)[:, None]
-    par = np.abs(np.einsum("ij,ij->i", u[pi], sv)) > _PARALLEL
-    out[pi[par]] = True
+    out[_along_pairs(mid, u, seg, tol)[0]] = True
     return out
 
 
@@ -264,14 +282,14 @@ class AsrBuilder:
     def _ring(self) -> np.ndarray:
         """Boundary vertices (V, 2), counter-clockwise, not closed, exit endpoints inserted."""
         ring = self.polygon.exterior
-        v = np.asarray(ring.coords)[:-1]
-        if not ring.is_ccw:
+        v = shapely.get_coordinates(ring)[:-1]
+        if not shapely.is_ccw(ring):
             v = v[::-1]
         if len(self.exit_segments) == 0:
             return v
         tol = self.p.simplify_tolerance
         x = self.exit_segments.reshape(-1, 2)
-        edges = np.stack([v, np.roll(v, -1, axis=0)], axis=1)
+        edges = np.stack([v, np.concatenate([v[1:], v[:1]])], axis=1)
         e, dist = _nearest_segment(x, edges, self.p.label_tolerance)
         a = edges[e, 0]
         ab = edges[e, 1] - a
@@ -292,13 +310,18 @@ class AsrBuilder:
     def _relabel(self) -> None:
         p = self.p
         v = self._ring()
-        nxt = np.roll(v, -1, axis=0)
+        nxt = np.concatenate([v[1:], v[:1]])
         mid = 0.5 * (v + nxt)
         d = nxt - v
         u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
-        is_exit = _along(mid, u, self.exit_segments, p.label_tolerance)
-        is_surface = _along(mid, u, self.surfaces, p.label_tolerance) & ~is_exit
-        labels = np.where(is_exit, "exit", np.where(is_surface, "surface", "unknown")).astype(object)
+        # one candidate search over both stores: exit segments first, then surfaces
+        ne = len(self.exit_segments)
+        labels = np.full(len(v), "unknown", dtype=object)
+        if len(self.surfaces) or ne:
+            store = np.concatenate([self.exit_segments, self.surfaces])
+            ei, si = _along_pairs(mid, u, store, p.label_tolerance)
+            labels[ei[si >= ne]] = "surface"
+            labels[ei[si < ne]] = "exit"  # an edge along both is an exit
         exits = self._exit_runs(v, labels)
         self._prune()
         centroid = self.polygon.centroid
@@ -338,32 +361,37 @@ class AsrBuilder:
         if size < 2 * self._pruned_size:
             return
         tol = self.p.label_tolerance
-        v = np.asarray(self.polygon.exterior.coords)
-        edges = np.stack([v[:-1], v[1:]], axis=1)
+        ring = self.polygon.exterior
+        shapely.prepare(ring)
         for name in ("surfaces", "exit_segments"):
             seg = getattr(self, name)
             if len(seg) == 0:
                 continue
+            # a segment whose midpoint is farther from the boundary than tol + half its length lies
+            # wholly farther than tol (one prepared, indexed distance test per segment, in GEOS)
             half = 0.5 * np.hypot(*(seg[:, 1] - seg[:, 0]).T)
-            _, d = _nearest_segment(0.5 * (seg[:, 0] + seg[:, 1]), edges, tol + float(half.max()))
-            near = d < tol + half
+            near = shapely.dwithin(shapely.points(0.5 * (seg[:, 0] + seg[:, 1])), ring, tol + half)
             setattr(self, name, seg[near])
         self._pruned_size = max(len(self.surfaces) + len(self.exit_segments), 16)
 
     def _keep_ids(self, runs: list[tuple[np.ndarray, np.ndarray]]) -> list[Exit]:
         old = list(self.asr.exits)
         out = []
-        for a, b in runs:
-            mid = 0.5 * (a + b)
+        if runs and old:
+            mids = 0.5 * (np.array([a for a, _ in runs]) + np.array([b for _, b in runs]))  # (R, 2)
+            diff = np.array([e.midpoint for e in old])[None, :, :] - mids[:, None, :]
+            dist = np.hypot(diff[..., 0], diff[..., 1]).tolist()  # (R, O): run midpoint to old exit's
+        taken = [False] * len(old)
+        for r, (a, b) in enumerate(runs):
             width = float(np.hypot(*(b - a)))
             best, best_d = None, max(0.5, 0.5 * width)
-            for e in old:
-                dd = float(np.hypot(*(np.asarray(e.midpoint) - mid)))
-                if dd < best_d:
-                    best, best_d = e, dd
+            for i in range(len(old)):  # the nearest not yet taken, the first of equals
+                if not taken[i] and dist[r][i] < best_d:
+                    best, best_d = i, dist[r][i]
             if best is not None:
-                old.remove(best)
-                out.append(Exit(best.id, (float(a[0]), float(a[1])), (float(b[0]), float(b[1])), best.to))
+                taken[best] = True
+                e = old[best]
+                out.append(Exit(e.id, (float(a[0]), float(a[1])), (float(b[0]), float(b[1])), e.to))
             else:
                 out.append(
                     Exit(
