@@ -140,9 +140,15 @@ class AsrBuilder:
         self._pruned_size = 16
         self._recorded = 0  # viewpoints appended by _record (see add_view)
         self._next_exit = 0
+        self.stale = False  # the polygon grew but the record was not relabelled yet
 
-    def add_view(self, view: View, pose: Pose) -> bool:
-        """Union the view seen from ``pose`` (ASR frame) into the ASR; True when the ASR changed."""
+    def add_view(self, view: View, pose: Pose, relabel: bool = True) -> bool:
+        """Union the view seen from ``pose`` (ASR frame) into the ASR; True when the ASR changed.
+
+        With ``relabel`` False the polygon and the label store are updated but the record's
+        boundary, labels, exits and centre only when :meth:`ensure_labels` is called (``stale``
+        until then); every method that needs them calls it first."""
+        self.ensure_labels()
         p = self.p
         robot = shapely.Point(pose[:2])
         if len(self.viewpoints) > self._recorded:
@@ -171,8 +177,17 @@ class AsrBuilder:
         self.surfaces = _add_new(self.surfaces, world_surfaces, tol)
         self.exit_segments = _add_new(self.exit_segments, _transform_segments(pose, view.exits), tol)
         self._record(pose, robot)
-        self._relabel()
+        if relabel:
+            self._relabel()
+        else:
+            self.stale = True
         return True
+
+    def ensure_labels(self) -> None:
+        """Bring the record's boundary, labels, exits and centre up to date with the polygon."""
+        if self.stale:
+            self.stale = False
+            self._relabel()
 
     def restart_path(self) -> None:
         """The robot did not walk here from the last viewpoint (it re-entered this ASR): the next
@@ -192,6 +207,7 @@ class AsrBuilder:
         never showed a gap: that place is an exit, ``passage_width`` wide along the boundary,
         centred on the point ``at`` nearest to where the robot left.
         """
+        self.ensure_labels()
         ring = self.polygon.exterior
         d = ring.project(shapely.Point(at))
         h = 0.5 * self.p.passage_width
@@ -348,8 +364,11 @@ class AsrBuilder:
         a = v[(first + shift) % n]
         b = v[(stop + shift) % n]
         wide = np.hypot(*(b - a).T) >= self.p.passage_width
-        for f, e in zip(first[~wide].tolist(), stop[~wide].tolist(), strict=True):
-            labels[(np.arange(f, e) + shift) % n] = "unknown"
+        if not wide.all():
+            f, e = first[~wide], stop[~wide]
+            size = e - f
+            idx = np.arange(size.sum()) + np.repeat(f - (np.cumsum(size) - size), size)
+            labels[(idx + shift) % n] = "unknown"
         return list(zip(a[wide], b[wide], strict=True))
 
     def _prune(self) -> None:
