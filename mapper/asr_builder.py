@@ -106,19 +106,38 @@ def _along(mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float) -> np.nd
     return out
 
 
-def _add_new(store: np.ndarray, seg: np.ndarray, tol: float) -> np.ndarray:
-    """``store`` plus those of ``seg`` it does not already cover (both (N, 2, 2), m).
+def _add_new(stores: list[np.ndarray], segs: list[np.ndarray], tol: float) -> list[np.ndarray]:
+    """Each store plus those of its new segments it does not already cover (all (N, 2, 2), m).
 
     A wall seen from every viewpoint would otherwise be stored once per view: a new segment is
-    kept unless its two ends and its midpoint all lie along stored ones (within ``tol``, parallel).
-    """
-    if len(store) == 0 or len(seg) == 0:
-        return np.concatenate([store, seg]) if len(seg) else store
-    u = seg[:, 1] - seg[:, 0]
-    u = u / np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-12)[:, None]
-    pts = np.concatenate([seg[:, 0], 0.5 * (seg[:, 0] + seg[:, 1]), seg[:, 1]])
-    covered = _along(pts, np.tile(u, (3, 1)), store, tol).reshape(3, -1).all(axis=0)
-    return np.concatenate([store, seg[~covered]])
+    kept unless its two ends and its midpoint all lie along stored ones of its own store (within
+    ``tol``, parallel). One candidate search serves every store."""
+    pts, dirs, pg, ss, sg, test = [], [], [], [], [], []
+    for g, (store, seg) in enumerate(zip(stores, segs, strict=True)):
+        if len(store) == 0 or len(seg) == 0:
+            continue
+        u = seg[:, 1] - seg[:, 0]
+        u = u / np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-12)[:, None]
+        pts.append(np.concatenate([seg[:, 0], 0.5 * (seg[:, 0] + seg[:, 1]), seg[:, 1]]))
+        dirs.append(np.tile(u, (3, 1)))
+        pg.append(np.full(3 * len(seg), g))
+        ss.append(store)
+        sg.append(np.full(len(store), g))
+        test.append(g)
+    out = [np.concatenate([st, sg_]) if len(sg_) else st for st, sg_ in zip(stores, segs, strict=True)]
+    if not test:
+        return out
+    pi, si = _along_pairs(np.concatenate(pts), np.concatenate(dirs), np.concatenate(ss), tol)
+    own = np.concatenate(pg)[pi] == np.concatenate(sg)[si]
+    hit = np.zeros(sum(len(x) for x in pts), dtype=bool)
+    hit[pi[own]] = True
+    at = 0
+    for g in test:
+        n = len(segs[g])
+        covered = hit[at : at + 3 * n].reshape(3, -1).all(axis=0)
+        out[g] = np.concatenate([stores[g], segs[g][~covered]])
+        at += 3 * n
+    return out
 
 
 def _transform_segments(pose: Pose, seg: np.ndarray) -> np.ndarray:
@@ -174,8 +193,9 @@ class AsrBuilder:
             return False
         self.polygon = self._single_ring(grown, robot)
         tol = 0.5 * p.label_tolerance
-        self.surfaces = _add_new(self.surfaces, world_surfaces, tol)
-        self.exit_segments = _add_new(self.exit_segments, _transform_segments(pose, view.exits), tol)
+        self.surfaces, self.exit_segments = _add_new(
+            [self.surfaces, self.exit_segments], [world_surfaces, _transform_segments(pose, view.exits)], tol
+        )
         self._record(pose, robot)
         if relabel:
             self._relabel()
