@@ -112,7 +112,6 @@ class Localiser:
         self._rot_shifts = np.arange(-w, w + 1)
         self._rot_index = (np.arange(self._nb)[None, :] + self._rot_shifts[:, None]) % self._nb
         self._tw = math.ceil(params.max_translation / params.xy_bin)
-        self._win = np.arange(-self._tw, self._tw + 1)[:, None, None]
         self.reset()
 
     def reset(self, pose: Pose = (0.0, 0.0, 0.0)) -> None:
@@ -170,6 +169,8 @@ class Localiser:
         # where scan points beyond the reference fall (index sink - tw)
         self._huv = np.concatenate([np.zeros(tw), hu, np.zeros(2 * tw), hv, np.zeros(2 * tw + 1)])
         self._offsets = np.array([tw, len(hu) + 3 * tw])  # where bin 0 of u and of v sit
+        # row r: the reference around bin r + tw, shifts -tw..tw (a view, no copy)
+        self._windows = np.lib.stride_tricks.sliding_window_view(self._huv, 2 * tw + 1)
         self._nuv = nb
         self._huv_norm = (float(np.sqrt(hu @ hu)), float(np.sqrt(hv @ hv)))
         self._ref_ready = True
@@ -199,11 +200,13 @@ class Localiser:
         b = np.floor((xy @ m.T + org) * (1.0 / p.xy_bin)).astype(int)
         tw, out = self._tw, len(self._huv) - 1 - self._tw
         idx = np.where((b >= 0) & (b < self._nuv), b + self._offsets, out)  # (K, 2)
-        # C(d) = sum_b h_scan(b) h_ref(b + d) = the sum over scan points of h_ref(bin + d)
-        c_uv = self._huv[idx[None, :, :] + self._win].sum(axis=1)  # (2 tw + 1, 2)
-        cu, cv = c_uv[:, 0], c_uv[:, 1]
-        shifts = np.array([(_peak(cu) - tw) * p.xy_bin, (_peak(cv) - tw) * p.xy_bin])
+        # C(d) = sum_b h_scan(b) h_ref(b + d): the scan's histogram times the reference's windows
+        # (integer counts, so the sums are exact in any order); the sink's window is all zeros
         h = np.bincount(idx.ravel(), minlength=len(self._huv)).astype(float)
+        split = self._offsets[1]
+        cu = h[tw:split] @ self._windows[: split - tw]
+        cv = h[split : len(h) - tw] @ self._windows[split - tw :]
+        shifts = np.array([(_peak(cu) - tw) * p.xy_bin, (_peak(cv) - tw) * p.xy_bin])
         h[out] = 0.0
         h *= h
         norm_u, norm_v = math.sqrt(h[: self._offsets[1]].sum()), math.sqrt(h[self._offsets[1] :].sum())
