@@ -24,17 +24,19 @@ not count until the robot has been ``CycleParams.entry_hysteresis`` away from it
 a doorway would otherwise flip between the two ASRs).
 
 **Pipelining (better than doing a viewpoint's work in one scan):** a viewpoint's work runs in
-three stages over three scans, so that no scan carries all of it: the viewpoint scan computes the
+three stages over two or three scans, so that no scan carries all of it: the viewpoint scan computes the
 surfaces, exits and view (a scan that re-enters an ASR leaves them to the next scan too) and takes
-its points as a localisation reference; the next ``add_scan``
-starts by unioning the view into the ASR's polygon and label store (:meth:`AsrBuilder.add_view`
-with ``relabel=False``); the one after starts by relabelling the boundary (exits, centre), then
-emits ``AsrUpdated`` and runs the cycle check. A stage runs earlier whenever something needs its
+its points as a localisation reference; the next ``add_scan`` starts by unioning the view into the
+ASR's polygon and label store (:meth:`AsrBuilder.add_view` with ``relabel=False``); the last stage,
+relabelling the boundary (exits, centre), then ``AsrUpdated`` and the cycle check, ends the first
+scan from then on that has time to spare (``_SPARE``: usually that same scan, after a large union
+the next). A stage runs earlier whenever something needs its
 result: the exits when the robot is outside the polygon or near the exit it came in by, everything
 before leaving the ASR or taking the next view, and everything when ``asrs``, ``globalmap``,
 ``global_pose``, ``document()`` or ``viewpoints()`` is read. Each stage sees the state it would
-have seen had the view been done at once, so the map is the same; a view's ``AsrUpdated`` and
-cycle events come one or two scans later (``flush()`` returns the last ones after the last scan).
+have seen had the view been done at once, so the map is the same (when a stage runs depends on
+the clock, what it computes does not); a view's ``AsrUpdated`` and cycle events come a scan or two
+later (``flush()`` returns the last ones after the last scan).
 A scan that creates an ASR computes its first view; the union, relabelling, entrance and cycle
 check of the new ASR are the next scan's first stage (``ExitCrossed`` comes with it).
 ``Mapper(params, defer_views=True)`` pipelines (offline replay and ``asrmap bench mapper`` do); the
@@ -71,6 +73,9 @@ from mapper.types import ASR, Exit, Odometry, Scan
 from mapper.view import View, build_view
 
 _ODOM_KEEP = 4096  # odometry readings kept for interpolation (minutes at 20 Hz)
+#: s. Pipelined, a scan that has spent less than this relabels the ASR its union grew (a view's
+#: last stage) before returning; a busier scan leaves it to the next one with time to spare.
+_SPARE = 1.5e-3
 
 
 def _segments_cross(p0, p1, a, b) -> tuple[bool, tuple[float, float]]:
@@ -217,11 +222,15 @@ class Mapper:
     def add_scan(self, scan: Scan) -> list[Event]:
         """Localise, grow the current ASR and detect exit crossings; returns the events (those of
         the previous viewpoint's view first, see "Pipelining" in the module docstring)."""
+        start = time.perf_counter()
         self.timing = {}
-        self._settle_labels()  # the older view's last stage, then the newer view's union
+        if self._pending is not None:
+            self._settle_labels()  # the union needs the labels (gates) of the view before
         self._settle_view()
         self._settle_creation()
         own = self._scan(scan)
+        if self._stale is not None and time.perf_counter() - start < _SPARE:
+            self._settle_labels()  # this scan had time to spare
         out, self._outbox = self._outbox, []
         return out + own if out else own
 
