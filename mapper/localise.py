@@ -141,11 +141,17 @@ class Localiser:
 
     def add_reference(self, xy: np.ndarray, pose: Pose) -> None:
         """Add a viewpoint scan (points ``xy`` (K, 2), robot frame) seen from ``pose`` (ASR frame)."""
-        pts = transform_points(pose, xy)
-        if self._refs and len(self._refs) > self.p.reference_scans:
-            del self._refs[1]  # keep the first (anchors the frame) and the latest ones
-        self._refs.append((pts, _directions(pts, self.p.direction_max_gap)))
-        self._build_reference()
+        self.add_references([(xy, pose)])
+
+    def add_references(self, scans: list[tuple[np.ndarray, Pose]]) -> None:
+        """:meth:`add_reference` for each (points, pose) in turn, the histograms built once."""
+        for xy, pose in scans:
+            pts = transform_points(pose, xy)
+            if self._refs and len(self._refs) > self.p.reference_scans:
+                del self._refs[1]  # keep the first (anchors the frame) and the latest ones
+            self._refs.append((pts, _directions(pts, self.p.direction_max_gap)))
+        if scans:
+            self._build_reference()
 
     def _build_reference(self) -> None:
         p = self.p

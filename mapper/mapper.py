@@ -25,7 +25,7 @@ a doorway would otherwise flip between the two ASRs).
 
 **Pipelining (better than doing a viewpoint's work in one scan):** a viewpoint's work runs in
 three stages over two or three scans, so that no scan carries all of it: the viewpoint scan computes the
-surfaces, exits and view (a scan that re-enters an ASR leaves them to the next scan too) and takes
+surfaces, exits and view (a busy scan that re-enters an ASR leaves them to the next one) and takes
 its points as a localisation reference; the next ``add_scan`` starts by unioning the view into the
 ASR's polygon and label store (:meth:`AsrBuilder.add_view` with ``relabel=False``); the last stage,
 relabelling the boundary (exits, centre), then ``AsrUpdated`` and the cycle check, ends the first
@@ -122,6 +122,7 @@ class Mapper:
         self._stale: tuple[float, int] | None = None  # (time, ASR) unioned but not yet relabelled
         self._creating: tuple | None = None  # the ASR the last scan created: (t, old, exit, at, pose)
         self._outbox: list[Event] = []
+        self._scan_start = 0.0  # perf_counter() at the start of the current add_scan
         # Per ASR: (scan points in the robot frame, viewpoint pose) of its first and latest views,
         # to restore the localisation reference when the robot re-enters it.
         self._refs: dict[int, list[tuple[np.ndarray, Pose]]] = {}
@@ -222,7 +223,7 @@ class Mapper:
     def add_scan(self, scan: Scan) -> list[Event]:
         """Localise, grow the current ASR and detect exit crossings; returns the events (those of
         the previous viewpoint's view first, see "Pipelining" in the module docstring)."""
-        start = time.perf_counter()
+        start = self._scan_start = time.perf_counter()
         self.timing = {}
         if self._pending is not None:
             self._settle_labels()  # the union needs the labels (gates) of the view before
@@ -452,8 +453,7 @@ class Mapper:
         new_pose = compose(inverse(tr.rel), pose)
         self.current = tr.dst
         self.localiser.reset(new_pose)
-        for xy, at in self._refs.get(tr.dst, []):
-            self.localiser.add_reference(xy, at)
+        self.localiser.add_references(self._refs.get(tr.dst, []))
         # The builder joins consecutive viewpoints with a swept corridor; the robot did not walk
         # from the last visit's viewpoint to here, so start the sweep afresh at the new pose.
         self._builders[tr.dst].viewpoints.append(new_pose)
@@ -461,7 +461,9 @@ class Mapper:
         self._entry, self._armed = (tr.dst, tr.via), False
         events: list[Event] = [ExitCrossed(t, tr.src, tr.exit, tr.dst, tr.via, False)]
         events += self._gm.enter(tr.dst, tr.src, t)
-        events += self._add_view(t, pts, new_pose, late=True)  # this scan already left an ASR
+        # this scan already left an ASR: when busy, even the view waits for the next scan
+        busy = time.perf_counter() - self._scan_start > _SPARE
+        events += self._add_view(t, pts, new_pose, late=busy)
         return events
 
     def _entrance(self, asr: int, at: tuple[float, float]) -> Exit | None:
