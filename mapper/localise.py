@@ -52,6 +52,11 @@ from mapper.se2 import Pose, compose, transform_points, wrap
 _STRIDE = 4  # beams between the two points of a direction sample: ~0.1-0.3 m baseline indoors
 _SMOOTH = np.array([1.0, 2.0, 3.0, 2.0, 1.0]) / 9.0
 _NOT_MEASURED = 1e6
+# What _build_reference makes (never changed in place): kept and restored as a whole.
+_REFERENCE = (
+    "_refs", "_ref_ready", "_hr", "_hr_shifted", "_hr_norm", "_alpha", "_uv0", "_huv", "_offsets", "_windows",
+    "_nuv", "_huv_norm",
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -138,6 +143,19 @@ class Localiser:
         self.kf.predict(u=u, Q=np.diag([st * st, st * st, sr * sr]))
         self.kf.x[2] = wrap(float(self.kf.x[2]))
         return self.pose
+
+    def reference(self) -> dict:
+        """The matching reference as built, to give back to :meth:`restore_reference` later."""
+        ref = {k: getattr(self, k) for k in _REFERENCE if hasattr(self, k)}
+        ref["_refs"] = list(self._refs)
+        return ref
+
+    def restore_reference(self, ref: dict) -> None:
+        """Match against a reference kept by :meth:`reference` (after :meth:`reset`): the same as
+        adding its scans again, without rebuilding the histograms."""
+        for k, v in ref.items():
+            setattr(self, k, v)
+        self._refs = list(ref["_refs"])
 
     def add_reference(self, xy: np.ndarray, pose: Pose) -> None:
         """Add a viewpoint scan (points ``xy`` (K, 2), robot frame) seen from ``pose`` (ASR frame)."""

@@ -126,6 +126,7 @@ class Mapper:
         # Per ASR: (scan points in the robot frame, viewpoint pose) of its first and latest views,
         # to restore the localisation reference when the robot re-enters it.
         self._refs: dict[int, list[tuple[np.ndarray, Pose]]] = {}
+        self._loc_refs: dict[int, dict] = {}  # per ASR: the localiser's reference as the robot left it
         # The (ASR, exit) the robot last came in through, and whether it has moved far enough
         # from it for a crossing of that exit to count again.
         self._entry: tuple[int, str | None] | None = None
@@ -421,6 +422,7 @@ class Mapper:
         """Leave through exit ``e`` (crossed at ``at``): re-enter the ASR it is known to lead to, or
         create the ASR beyond it with its frame at ``pose``."""
         old = self.current
+        self._loc_refs[old] = self.localiser.reference()  # for a re-entry into old
         known = self._gm.lookup(old, e.id)
         if known is not None and known.dst in self._builders:
             return self._reenter(t, known, pose, pts)
@@ -453,7 +455,11 @@ class Mapper:
         new_pose = compose(inverse(tr.rel), pose)
         self.current = tr.dst
         self.localiser.reset(new_pose)
-        self.localiser.add_references(self._refs.get(tr.dst, []))
+        kept = self._loc_refs.get(tr.dst)
+        if kept is not None:  # the reference it had when the robot left it (its views since: none)
+            self.localiser.restore_reference(kept)
+        else:
+            self.localiser.add_references(self._refs.get(tr.dst, []))
         # The builder joins consecutive viewpoints with a swept corridor; the robot did not walk
         # from the last visit's viewpoint to here, so start the sweep afresh at the new pose.
         self._builders[tr.dst].viewpoints.append(new_pose)
