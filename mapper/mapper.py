@@ -258,7 +258,11 @@ class Mapper:
         self.localiser.correct(pts.xy)
         pose = self.pose
         timing["localise"] = time.perf_counter() - tic
-        crossed = self._crossed_exit(prev, pose) or self._left_elsewhere(prev, pose)
+        # inside the polygon the robot neither crossed an exit nor left elsewhere (distance 0)
+        inside = bool(shapely.contains_xy(self._builders[self.current].polygon, pose[0], pose[1]))
+        crossed = self._crossed_exit(prev, pose, inside)
+        if crossed is None and not inside:
+            crossed = self._left_elsewhere(prev, pose)
         if crossed is not None:
             return self._leave_through(scan.t, crossed[0], crossed[1], pose, pts)
         if self._is_viewpoint(pose):
@@ -365,14 +369,19 @@ class Mapper:
             timing["cycles"] = time.perf_counter() - tic
 
     # --- crossing exits (§4): small methods, meant to be extended --------------------------------
-    def _crossed_exit(self, prev: Pose, pose: Pose) -> tuple[Exit, tuple[float, float]] | None:
+    def _crossed_exit(
+        self, prev: Pose, pose: Pose, inside: bool | None = None
+    ) -> tuple[Exit, tuple[float, float]] | None:
         """The exit of the current ASR crossed between ``prev`` and ``pose`` (ASR frame) and where,
-        if the robot now lies outside the ASR polygon; else None."""
+        if the robot now lies outside the ASR polygon (``inside``: whether it lies inside, if known);
+        else None."""
         b = self._builders[self.current]
         if not self._armed and self._entry is not None and self._entry[0] == self.current:
             self._settle_labels()  # the entry hysteresis reads the exits
         ignore = self._entry_to_ignore(b, pose)
-        if b.polygon.contains(shapely.Point(pose[:2])):
+        if inside is None:
+            inside = bool(shapely.contains_xy(b.polygon, pose[0], pose[1]))
+        if inside:
             return None
         self._settle_labels()  # outside: the exits are needed, and leaving needs the last check done
         if not b.asr.exits:
