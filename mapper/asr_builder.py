@@ -46,16 +46,26 @@ _SAMPLES = np.linspace(0.1, 0.9, 5)  # fractions along an exit tested for being 
 
 
 def _pairs_within(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.ndarray, ...]:
-    """The (point, segment) pairs closer than ``tol`` (m): point and segment indices and distances.
+    """The (point, segment) pairs closer than ``tol`` (m): point and segment indices and distances
+    (in no particular order).
 
-    A bounding-box test over all pairs (four comparisons each) picks the few candidates whose exact
-    distance is then computed, so the cost stays a handful of numpy operations whatever the sizes
+    Candidates are the points inside each segment's bounding box grown by ``tol``: the points sorted
+    by x, each box's x-range is two binary searches, and only the pairs in those ranges are tested
+    on y and then by exact distance. The cost follows the candidates, not the product of the sizes
     of an ASR's boundary and label store.
     """
     lo = seg.min(axis=1) - tol  # (S, 2)
     hi = seg.max(axis=1) + tol
-    x, y = p[:, 0:1], p[:, 1:2]
-    pi, si = np.nonzero((x >= lo[:, 0]) & (x <= hi[:, 0]) & (y >= lo[:, 1]) & (y <= hi[:, 1]))
+    order = np.argsort(p[:, 0], kind="stable")
+    xs = p[order, 0]
+    i0 = np.searchsorted(xs, lo[:, 0], side="left")
+    n = np.searchsorted(xs, hi[:, 0], side="right") - i0
+    n = np.maximum(n, 0)
+    si = np.repeat(np.arange(len(seg)), n)
+    pi = order[np.arange(len(si)) - np.repeat(np.cumsum(n) - n - i0, n)]
+    y = p[pi, 1]
+    ok = (y >= lo[si, 1]) & (y <= hi[si, 1])
+    pi, si = pi[ok], si[ok]
     q, _ = closest_on_segments(p[pi], seg[si])
     d = np.hypot(*(q - p[pi]).T)
     near = d < tol
@@ -70,11 +80,23 @@ def _nearest_segment(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.nda
     dist = np.full(len(p), np.inf)
     if len(pi) == 0:
         return e, dist
-    order = np.lexsort((d, pi))
+    order = np.lexsort((si, d, pi))
     first = np.append(True, np.diff(pi[order]) != 0)
     k = order[first]
     e[pi[k]], dist[pi[k]] = si[k], d[k]
     return e, dist
+
+
+def _along_pairs(
+    mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The (edge, segment) index pairs where an edge (midpoint, unit direction) lies along a segment:
+    within ``tol`` (m) and parallel to within 20°."""
+    pi, si, _ = _pairs_within(mid, seg, tol)
+    sv = seg[si, 1] - seg[si, 0]
+    sv = sv / np.maximum(np.hypot(sv[:, 0], sv[:, 1]), 1e-12)[:, None]
+    par = np.abs(np.einsum("ij,ij->i", u[pi], sv)) > _PARALLEL
+    return pi[par], si[par]
 
 
 def _along(mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float) -> np.ndarray:
@@ -82,27 +104,42 @@ def _along(mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float) -> np.nd
     out = np.zeros(len(mid), dtype=bool)
     if len(seg) == 0 or len(mid) == 0:
         return out
-    pi, si, _ = _pairs_within(mid, seg, tol)
-    sv = seg[si, 1] - seg[si, 0]
-    sv = sv / np.maximum(np.hypot(sv[:, 0], sv[:, 1]), 1e-12)[:, None]
-    par = np.abs(np.einsum("ij,ij->i", u[pi], sv)) > _PARALLEL
-    out[pi[par]] = True
+    out[_along_pairs(mid, u, seg, tol)[0]] = True
     return out
 
 
-def _add_new(store: np.ndarray, seg: np.ndarray, tol: float) -> np.ndarray:
-    """``store`` plus those of ``seg`` it does not already cover (both (N, 2, 2), m).
+def _add_new(stores: list[np.ndarray], segs: list[np.ndarray], tol: float) -> list[np.ndarray]:
+    """Each store plus those of its new segments it does not already cover (all (N, 2, 2), m).
 
     A wall seen from every viewpoint would otherwise be stored once per view: a new segment is
-    kept unless its two ends and its midpoint all lie along stored ones (within ``tol``, parallel).
-    """
-    if len(store) == 0 or len(seg) == 0:
-        return np.concatenate([store, seg]) if len(seg) else store
-    u = seg[:, 1] - seg[:, 0]
-    u = u / np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-12)[:, None]
-    pts = np.concatenate([seg[:, 0], 0.5 * (seg[:, 0] + seg[:, 1]), seg[:, 1]])
-    covered = _along(pts, np.tile(u, (3, 1)), store, tol).reshape(3, -1).all(axis=0)
-    return np.concatenate([store, seg[~covered]])
+    kept unless its two ends and its midpoint all lie along stored ones of its own store (within
+    ``tol``, parallel). One candidate search serves every store."""
+    pts, dirs, pg, ss, sg, test = [], [], [], [], [], []
+    for g, (store, seg) in enumerate(zip(stores, segs, strict=True)):
+        if len(store) == 0 or len(seg) == 0:
+            continue
+        u = seg[:, 1] - seg[:, 0]
+        u = u / np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-12)[:, None]
+        pts.append(np.concatenate([seg[:, 0], 0.5 * (seg[:, 0] + seg[:, 1]), seg[:, 1]]))
+        dirs.append(np.tile(u, (3, 1)))
+        pg.append(np.full(3 * len(seg), g))
+        ss.append(store)
+        sg.append(np.full(len(store), g))
+        test.append(g)
+    out = [np.concatenate([st, sg_]) if len(sg_) else st for st, sg_ in zip(stores, segs, strict=True)]
+    if not test:
+        return out
+    pi, si = _along_pairs(np.concatenate(pts), np.concatenate(dirs), np.concatenate(ss), tol)
+    own = np.concatenate(pg)[pi] == np.concatenate(sg)[si]
+    hit = np.zeros(sum(len(x) for x in pts), dtype=bool)
+    hit[pi[own]] = True
+    at = 0
+    for g in test:
+        n = len(segs[g])
+        covered = hit[at : at + 3 * n].reshape(3, -1).all(axis=0)
+        out[g] = np.concatenate([stores[g], segs[g][~covered]])
+        at += 3 * n
+    return out
 
 
 def _transform_segments(pose: Pose, seg: np.ndarray) -> np.ndarray:
@@ -124,9 +161,15 @@ class AsrBuilder:
         self._pruned_size = 16
         self._recorded = 0  # viewpoints appended by _record (see add_view)
         self._next_exit = 0
+        self.stale = False  # the polygon grew but the record was not relabelled yet
 
-    def add_view(self, view: View, pose: Pose) -> bool:
-        """Union the view seen from ``pose`` (ASR frame) into the ASR; True when the ASR changed."""
+    def add_view(self, view: View, pose: Pose, relabel: bool = True) -> bool:
+        """Union the view seen from ``pose`` (ASR frame) into the ASR; True when the ASR changed.
+
+        With ``relabel`` False the polygon and the label store are updated but the record's
+        boundary, labels, exits and centre only when :meth:`ensure_labels` is called (``stale``
+        until then); every method that needs them calls it first."""
+        self.ensure_labels()
         p = self.p
         robot = shapely.Point(pose[:2])
         if len(self.viewpoints) > self._recorded:
@@ -154,11 +197,21 @@ class AsrBuilder:
             return False
         self.polygon = self._single_ring(grown, robot)
         tol = 0.5 * p.label_tolerance
-        self.surfaces = _add_new(self.surfaces, world_surfaces, tol)
-        self.exit_segments = _add_new(self.exit_segments, _transform_segments(pose, view.exits), tol)
+        self.surfaces, self.exit_segments = _add_new(
+            [self.surfaces, self.exit_segments], [world_surfaces, _transform_segments(pose, view.exits)], tol
+        )
         self._record(pose, robot)
-        self._relabel()
+        if relabel:
+            self._relabel()
+        else:
+            self.stale = True
         return True
+
+    def ensure_labels(self) -> None:
+        """Bring the record's boundary, labels, exits and centre up to date with the polygon."""
+        if self.stale:
+            self.stale = False
+            self._relabel()
 
     def restart_path(self) -> None:
         """The robot did not walk here from the last viewpoint (it re-entered this ASR): the next
@@ -178,6 +231,7 @@ class AsrBuilder:
         never showed a gap: that place is an exit, ``passage_width`` wide along the boundary,
         centred on the point ``at`` nearest to where the robot left.
         """
+        self.ensure_labels()
         ring = self.polygon.exterior
         d = ring.project(shapely.Point(at))
         h = 0.5 * self.p.passage_width
@@ -268,14 +322,14 @@ class AsrBuilder:
     def _ring(self) -> np.ndarray:
         """Boundary vertices (V, 2), counter-clockwise, not closed, exit endpoints inserted."""
         ring = self.polygon.exterior
-        v = np.asarray(ring.coords)[:-1]
-        if not ring.is_ccw:
+        v = shapely.get_coordinates(ring)[:-1]
+        if not shapely.is_ccw(ring):
             v = v[::-1]
         if len(self.exit_segments) == 0:
             return v
         tol = self.p.simplify_tolerance
         x = self.exit_segments.reshape(-1, 2)
-        edges = np.stack([v, np.roll(v, -1, axis=0)], axis=1)
+        edges = np.stack([v, np.concatenate([v[1:], v[:1]])], axis=1)
         e, dist = _nearest_segment(x, edges, self.p.label_tolerance)
         a = edges[e, 0]
         ab = edges[e, 1] - a
@@ -296,13 +350,18 @@ class AsrBuilder:
     def _relabel(self) -> None:
         p = self.p
         v = self._ring()
-        nxt = np.roll(v, -1, axis=0)
+        nxt = np.concatenate([v[1:], v[:1]])
         mid = 0.5 * (v + nxt)
         d = nxt - v
         u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
-        is_exit = _along(mid, u, self.exit_segments, p.label_tolerance)
-        is_surface = _along(mid, u, self.surfaces, p.label_tolerance) & ~is_exit
-        labels = np.where(is_exit, "exit", np.where(is_surface, "surface", "unknown")).astype(object)
+        # one candidate search over both stores: exit segments first, then surfaces
+        ne = len(self.exit_segments)
+        labels = np.full(len(v), "unknown", dtype=object)
+        if len(self.surfaces) or ne:
+            store = np.concatenate([self.exit_segments, self.surfaces])
+            ei, si = _along_pairs(mid, u, store, p.label_tolerance)
+            labels[ei[si >= ne]] = "surface"
+            labels[ei[si < ne]] = "exit"  # an edge along both is an exit
         exits = self._exit_runs(v, labels)
         self._prune()
         centroid = self.polygon.centroid
@@ -329,8 +388,11 @@ class AsrBuilder:
         a = v[(first + shift) % n]
         b = v[(stop + shift) % n]
         wide = np.hypot(*(b - a).T) >= self.p.passage_width
-        for f, e in zip(first[~wide].tolist(), stop[~wide].tolist(), strict=True):
-            labels[(np.arange(f, e) + shift) % n] = "unknown"
+        if not wide.all():
+            f, e = first[~wide], stop[~wide]
+            size = e - f
+            idx = np.arange(size.sum()) + np.repeat(f - (np.cumsum(size) - size), size)
+            labels[(idx + shift) % n] = "unknown"
         return list(zip(a[wide], b[wide], strict=True))
 
     def _prune(self) -> None:
@@ -342,32 +404,37 @@ class AsrBuilder:
         if size < 2 * self._pruned_size:
             return
         tol = self.p.label_tolerance
-        v = np.asarray(self.polygon.exterior.coords)
-        edges = np.stack([v[:-1], v[1:]], axis=1)
+        ring = self.polygon.exterior
+        shapely.prepare(ring)
         for name in ("surfaces", "exit_segments"):
             seg = getattr(self, name)
             if len(seg) == 0:
                 continue
+            # a segment whose midpoint is farther from the boundary than tol + half its length lies
+            # wholly farther than tol (one prepared, indexed distance test per segment, in GEOS)
             half = 0.5 * np.hypot(*(seg[:, 1] - seg[:, 0]).T)
-            _, d = _nearest_segment(0.5 * (seg[:, 0] + seg[:, 1]), edges, tol + float(half.max()))
-            near = d < tol + half
+            near = shapely.dwithin(shapely.points(0.5 * (seg[:, 0] + seg[:, 1])), ring, tol + half)
             setattr(self, name, seg[near])
         self._pruned_size = max(len(self.surfaces) + len(self.exit_segments), 16)
 
     def _keep_ids(self, runs: list[tuple[np.ndarray, np.ndarray]]) -> list[Exit]:
         old = list(self.asr.exits)
         out = []
-        for a, b in runs:
-            mid = 0.5 * (a + b)
+        if runs and old:
+            mids = 0.5 * (np.array([a for a, _ in runs]) + np.array([b for _, b in runs]))  # (R, 2)
+            diff = np.array([e.midpoint for e in old])[None, :, :] - mids[:, None, :]
+            dist = np.hypot(diff[..., 0], diff[..., 1]).tolist()  # (R, O): run midpoint to old exit's
+        taken = [False] * len(old)
+        for r, (a, b) in enumerate(runs):
             width = float(np.hypot(*(b - a)))
             best, best_d = None, max(0.5, 0.5 * width)
-            for e in old:
-                dd = float(np.hypot(*(np.asarray(e.midpoint) - mid)))
-                if dd < best_d:
-                    best, best_d = e, dd
+            for i in range(len(old)):  # the nearest not yet taken, the first of equals
+                if not taken[i] and dist[r][i] < best_d:
+                    best, best_d = i, dist[r][i]
             if best is not None:
-                old.remove(best)
-                out.append(Exit(best.id, (float(a[0]), float(a[1])), (float(b[0]), float(b[1])), best.to))
+                taken[best] = True
+                e = old[best]
+                out.append(Exit(e.id, (float(a[0]), float(a[1])), (float(b[0]), float(b[1])), e.to))
             else:
                 out.append(
                     Exit(

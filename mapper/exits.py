@@ -104,20 +104,41 @@ def _shortest(
     cand = np.argpartition(length, nc - 1, axis=1)[:, :nc]  # (G, C) window positions
     g_ = np.arange(len(gap))[:, None]
     clen, cq, ctq = length[g_, cand], q[g_, cand], tq[g_, cand]
-    # the surfaces strictly between P and Q (window positions before Q's) must lie beyond the line
-    # PQ as seen from the laser
-    inside = (off[None, None, :] < cand[..., None]) & valid[:, None, :]  # (G, C, W)
-    d = cq - pp[:, None, :]  # (G, C, 2) line direction
-    dn = np.maximum(np.hypot(d[..., 0], d[..., 1]), 1e-9)
-    sgn = np.where(_cross(d, o - pp[:, None, :]) >= 0, 1.0, -1.0)  # the laser's side of the line
-    ends = segw.reshape(len(gap), 1, 2 * w, 2) - pp[:, None, None, :]  # (G, 1, 2W, 2)
-    side_e = _cross(d[:, :, None, :], ends) / dn[..., None]  # (G, C, 2W)
-    in_front = (side_e * sgn[..., None] > p.visibility_tolerance).reshape(*side_e.shape[:2], w, 2).any(-1)
-    clen = np.where((inside & in_front).any(-1), np.inf, clen)
-    pick = np.argmin(clen, axis=1)
-    g1 = np.arange(len(gap))
+    # The surfaces strictly between P and Q (window positions before Q's) must lie beyond the line
+    # PQ as seen from the laser. The candidates are tried shortest first (equal lengths: in the
+    # order above), each round only for the gaps whose shorter candidates were all hidden, so most
+    # gaps take one round: the first visible one is the shortest visible. A gap with none keeps its
+    # first candidate, at infinite length.
+    g = len(gap)
+    order = np.argsort(clen, axis=1, kind="stable")
+    pick = np.zeros(g, dtype=int)
+    best_len = np.full(g, np.inf)
+    todo = np.arange(g)
+    for r in range(nc):
+        c = order[todo, r]
+        lr = clen[todo, c]
+        finite = np.isfinite(lr)  # past the last finite candidate every other is infinite too
+        todo, c, lr = todo[finite], c[finite], lr[finite]
+        if not len(todo):
+            break
+        cpos = cand[todo, c]
+        wv = int(cpos.max())
+        hidden = np.zeros(len(todo), dtype=bool)
+        if wv > 0:
+            ppt = pp[todo]
+            d = cq[todo, c] - ppt  # (T, 2) line direction
+            dn = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
+            sgn = np.where(_cross(d, o - ppt) >= 0, 1.0, -1.0)  # the laser's side of the line
+            ends = segw[todo, :wv].reshape(len(todo), 2 * wv, 2) - ppt[:, None, :]  # (T, 2 wv, 2)
+            side_e = _cross(d[:, None, :], ends) / dn[:, None]
+            in_front = (side_e * sgn[:, None] > p.visibility_tolerance).reshape(len(todo), wv, 2).any(-1)
+            inside = (off[None, :wv] < cpos[:, None]) & valid[todo, :wv]
+            hidden = (inside & in_front).any(-1)
+        seen = todo[~hidden]
+        pick[seen], best_len[seen] = c[~hidden], lr[~hidden]
+        todo = todo[hidden]
+    g1 = np.arange(g)
     best = kw[g1, cand[g1, pick]]
-    best_len = clen[g1, pick]
     qb = cq[g1, pick]
     tqb = ctq[g1, pick]
     return best, best_len, qb, tqb

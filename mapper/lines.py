@@ -109,33 +109,35 @@ def _ranges_index(s: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray,
     lengths = e - s + 1
     starts = np.cumsum(lengths) - lengths
     owner = np.repeat(np.arange(len(s)), lengths)
-    idx = np.arange(lengths.sum()) - starts[owner] + s[owner]
+    idx = np.arange(len(owner)) + np.repeat(s - starts, lengths)
     return idx, owner, starts
 
 
 def _split(xy: np.ndarray, s: np.ndarray, e: np.ndarray, thr: float) -> tuple[np.ndarray, np.ndarray]:
     """Iterative end-point fit of all pieces at once; returns the final (start, end) point indices."""
     done_s, done_e = [], []
+    x, y = xy[:, 0], xy[:, 1]
     while len(s):
         inner = e - s >= 2
-        done_s.append(s[~inner])
-        done_e.append(e[~inner])
-        s, e = s[inner], e[inner]
-        if not len(s):
-            break
+        if not inner.all():
+            done_s.append(s[~inner])
+            done_e.append(e[~inner])
+            s, e = s[inner], e[inner]
+            if not len(s):
+                break
         idx, owner, starts = _ranges_index(s + 1, e - 1)
-        a, b = xy[s][owner], xy[e][owner]
-        ab = b - a
-        ap = xy[idx] - a
-        norm = np.maximum(np.hypot(ab[:, 0], ab[:, 1]), 1e-9)
-        d = np.abs(ab[:, 0] * ap[:, 1] - ab[:, 1] * ap[:, 0]) / norm
+        ax, ay = x[s], y[s]
+        abx, aby = x[e] - ax, y[e] - ay
+        norm = np.maximum(np.hypot(abx, aby), 1e-9)
+        d = np.abs(abx[owner] * (y[idx] - ay[owner]) - aby[owner] * (x[idx] - ax[owner])) / norm[owner]
         dmax = np.maximum.reduceat(d, starts)
         at_max = np.flatnonzero(d == dmax[owner])
         # owners are sorted, so the first maximum of each piece is found by a binary search
         m = idx[at_max[np.searchsorted(owner[at_max], np.arange(len(s)))]]
         split = dmax > thr
-        done_s.append(s[~split])
-        done_e.append(e[~split])
+        if not split.all():
+            done_s.append(s[~split])
+            done_e.append(e[~split])
         s = np.concatenate([s[split], m[split]])
         e = np.concatenate([m[split], e[split]])
     s, e = np.concatenate(done_s), np.concatenate(done_e)

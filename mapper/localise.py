@@ -52,6 +52,11 @@ from mapper.se2 import Pose, compose, transform_points, wrap
 _STRIDE = 4  # beams between the two points of a direction sample: ~0.1-0.3 m baseline indoors
 _SMOOTH = np.array([1.0, 2.0, 3.0, 2.0, 1.0]) / 9.0
 _NOT_MEASURED = 1e6
+# What _build_reference makes (never changed in place): kept and restored as a whole.
+_REFERENCE = (
+    "_refs", "_ref_ready", "_hr", "_hr_shifted", "_hr_norm", "_alpha", "_uv0", "_huv", "_offsets", "_windows",
+    "_nuv", "_huv_norm",
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -112,7 +117,6 @@ class Localiser:
         self._rot_shifts = np.arange(-w, w + 1)
         self._rot_index = (np.arange(self._nb)[None, :] + self._rot_shifts[:, None]) % self._nb
         self._tw = math.ceil(params.max_translation / params.xy_bin)
-        self._win = np.arange(-self._tw, self._tw + 1)[:, None, None]
         self.reset()
 
     def reset(self, pose: Pose = (0.0, 0.0, 0.0)) -> None:
@@ -140,13 +144,32 @@ class Localiser:
         self.kf.x[2] = wrap(float(self.kf.x[2]))
         return self.pose
 
+    def reference(self) -> dict:
+        """The matching reference as built, to give back to :meth:`restore_reference` later."""
+        ref = {k: getattr(self, k) for k in _REFERENCE if hasattr(self, k)}
+        ref["_refs"] = list(self._refs)
+        return ref
+
+    def restore_reference(self, ref: dict) -> None:
+        """Match against a reference kept by :meth:`reference` (after :meth:`reset`): the same as
+        adding its scans again, without rebuilding the histograms."""
+        for k, v in ref.items():
+            setattr(self, k, v)
+        self._refs = list(ref["_refs"])
+
     def add_reference(self, xy: np.ndarray, pose: Pose) -> None:
         """Add a viewpoint scan (points ``xy`` (K, 2), robot frame) seen from ``pose`` (ASR frame)."""
-        pts = transform_points(pose, xy)
-        if self._refs and len(self._refs) > self.p.reference_scans:
-            del self._refs[1]  # keep the first (anchors the frame) and the latest ones
-        self._refs.append((pts, _directions(pts, self.p.direction_max_gap)))
-        self._build_reference()
+        self.add_references([(xy, pose)])
+
+    def add_references(self, scans: list[tuple[np.ndarray, Pose]]) -> None:
+        """:meth:`add_reference` for each (points, pose) in turn, the histograms built once."""
+        for xy, pose in scans:
+            pts = transform_points(pose, xy)
+            if self._refs and len(self._refs) > self.p.reference_scans:
+                del self._refs[1]  # keep the first (anchors the frame) and the latest ones
+            self._refs.append((pts, _directions(pts, self.p.direction_max_gap)))
+        if scans:
+            self._build_reference()
 
     def _build_reference(self) -> None:
         p = self.p
@@ -170,6 +193,8 @@ class Localiser:
         # where scan points beyond the reference fall (index sink - tw)
         self._huv = np.concatenate([np.zeros(tw), hu, np.zeros(2 * tw), hv, np.zeros(2 * tw + 1)])
         self._offsets = np.array([tw, len(hu) + 3 * tw])  # where bin 0 of u and of v sit
+        # row r: the reference around bin r + tw, shifts -tw..tw (a view, no copy)
+        self._windows = np.lib.stride_tricks.sliding_window_view(self._huv, 2 * tw + 1)
         self._nuv = nb
         self._huv_norm = (float(np.sqrt(hu @ hu)), float(np.sqrt(hv @ hv)))
         self._ref_ready = True
@@ -199,11 +224,13 @@ class Localiser:
         b = np.floor((xy @ m.T + org) * (1.0 / p.xy_bin)).astype(int)
         tw, out = self._tw, len(self._huv) - 1 - self._tw
         idx = np.where((b >= 0) & (b < self._nuv), b + self._offsets, out)  # (K, 2)
-        # C(d) = sum_b h_scan(b) h_ref(b + d) = the sum over scan points of h_ref(bin + d)
-        c_uv = self._huv[idx[None, :, :] + self._win].sum(axis=1)  # (2 tw + 1, 2)
-        cu, cv = c_uv[:, 0], c_uv[:, 1]
-        shifts = np.array([(_peak(cu) - tw) * p.xy_bin, (_peak(cv) - tw) * p.xy_bin])
+        # C(d) = sum_b h_scan(b) h_ref(b + d): the scan's histogram times the reference's windows
+        # (integer counts, so the sums are exact in any order); the sink's window is all zeros
         h = np.bincount(idx.ravel(), minlength=len(self._huv)).astype(float)
+        split = self._offsets[1]
+        cu = h[tw:split] @ self._windows[: split - tw]
+        cv = h[split : len(h) - tw] @ self._windows[split - tw :]
+        shifts = np.array([(_peak(cu) - tw) * p.xy_bin, (_peak(cv) - tw) * p.xy_bin])
         h[out] = 0.0
         h *= h
         norm_u, norm_v = math.sqrt(h[: self._offsets[1]].sum()), math.sqrt(h[self._offsets[1] :].sum())

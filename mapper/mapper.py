@@ -23,6 +23,27 @@ is the entrance (``via``). Right after entering through an exit, crossing that s
 not count until the robot has been ``CycleParams.entry_hysteresis`` away from it (a robot standing in
 a doorway would otherwise flip between the two ASRs).
 
+**Pipelining (better than doing a viewpoint's work in one scan):** a viewpoint's work runs in
+three stages over two or three scans, so that no scan carries all of it: the viewpoint scan computes the
+surfaces, exits and view (a busy scan that re-enters an ASR leaves them to the next one) and takes
+its points as a localisation reference; the next ``add_scan`` starts by unioning the view into the
+ASR's polygon and label store (:meth:`AsrBuilder.add_view` with ``relabel=False``); the last stage,
+relabelling the boundary (exits, centre), then ``AsrUpdated`` and the cycle check, ends the first
+scan from then on that has time to spare (``_SPARE``: usually that same scan, after a large union
+the next). A stage runs earlier whenever something needs its
+result: the exits when the robot is outside the polygon or near the exit it came in by, everything
+before leaving the ASR or taking the next view, and everything when ``asrs``, ``globalmap``,
+``global_pose``, ``document()`` or ``viewpoints()`` is read. Each stage sees the state it would
+have seen had the view been done at once, so the map is the same (when a stage runs depends on
+the clock, what it computes does not); a view's ``AsrUpdated`` and cycle events come a scan or two
+later (``flush()`` returns the last ones after the last scan).
+A scan that creates an ASR computes its first view; the union, relabelling, entrance and cycle
+check of the new ASR are the next scan's first stage (``ExitCrossed`` comes with it).
+``Mapper(params, defer_views=True)`` pipelines (offline replay and ``asrmap bench mapper`` do); the
+default does all of a viewpoint's work in its own scan, as the live service and the simulator do:
+there the explorer reads the map after every scan, and the odometry a scan gets depends on when it
+is processed, so the service keeps its timing as it was.
+
 The global metric map and cycle closing (§5, §7) live in :class:`mapper.globalmap.GlobalMap`
 (``Mapper.globalmap``): it is told of every new, re-entered and grown ASR and answers with cycle
 events (CycleDetected, CycleRejected, MapRealigned). ``document()`` gives the ``asrmap/map/1`` map and
@@ -49,9 +70,12 @@ from mapper.params import MapperParams
 from mapper.se2 import Pose, between, compose, interpolate, inverse
 from mapper.topology import Transition
 from mapper.types import ASR, Exit, Odometry, Scan
-from mapper.view import build_view
+from mapper.view import View, build_view
 
 _ODOM_KEEP = 4096  # odometry readings kept for interpolation (minutes at 20 Hz)
+#: s. Pipelined, a scan that has spent less than this relabels the ASR its union grew (a view's
+#: last stage) before returning; a busier scan leaves it to the next one with time to spare.
+_SPARE = 1.5e-3
 
 
 def _segments_cross(p0, p1, a, b) -> tuple[bool, tuple[float, float]]:
@@ -77,9 +101,10 @@ class Mapper:
     global frame; ``timing``: seconds spent per stage on the last scan (for benchmarks).
     """
 
-    def __init__(self, params: MapperParams | None = None):
+    def __init__(self, params: MapperParams | None = None, defer_views: bool = False):
         self.params = params or MapperParams()
-        self.asrs: dict[int, ASR] = {}
+        self.defer_views = defer_views
+        self._asrs: dict[int, ASR] = {}
         self.current: int | None = None
         self.localiser = Localiser(self.params)
         self.timing: dict[str, float] = {}
@@ -89,10 +114,19 @@ class Mapper:
         self._last_odom: Pose | None = None
         self._last_view: Pose | None = None
         self._next_id = 1
-        self.globalmap = GlobalMap(self.params.cycles)
+        self._gm = GlobalMap(self.params.cycles)
+        # A viewpoint's view waiting to be unioned into its ASR (see "Pipelining" in the module
+        # docstring): (time, ASR id, scan points, pose, view or None when not computed yet); and the
+        # events of settled views not yet returned.
+        self._pending: tuple[float, int, ScanPoints, Pose, View | None] | None = None
+        self._stale: tuple[float, int] | None = None  # (time, ASR) unioned but not yet relabelled
+        self._creating: tuple | None = None  # the ASR the last scan created: (t, old, exit, at, pose)
+        self._outbox: list[Event] = []
+        self._scan_start = 0.0  # perf_counter() at the start of the current add_scan
         # Per ASR: (scan points in the robot frame, viewpoint pose) of its first and latest views,
         # to restore the localisation reference when the robot re-enters it.
         self._refs: dict[int, list[tuple[np.ndarray, Pose]]] = {}
+        self._loc_refs: dict[int, dict] = {}  # per ASR: the localiser's reference as the robot left it
         # The (ASR, exit) the robot last came in through, and whether it has moved far enough
         # from it for a crossing of that exit to count again.
         self._entry: tuple[int, str | None] | None = None
@@ -105,6 +139,25 @@ class Mapper:
         """The whole map as an ``asrmap/map/1`` document (:mod:`mapper.document`)."""
         return document_of(self.globalmap, robot)
 
+    @property
+    def asrs(self) -> dict[int, ASR]:
+        """id -> ASR, with every view taken so far unioned in."""
+        self._settle()
+        return self._asrs
+
+    @property
+    def globalmap(self) -> GlobalMap:
+        """The global metric map (:class:`~mapper.globalmap.GlobalMap`), every view unioned in."""
+        self._settle()
+        return self._gm
+
+    def flush(self) -> list[Event]:
+        """Union the view still waiting (if any) and return the events not yet returned by
+        :meth:`add_scan`: call it after the last scan (replay's end, shutdown)."""
+        self._settle()
+        out, self._outbox = self._outbox, []
+        return out
+
     @classmethod
     def from_document(
         cls, doc: dict, params: MapperParams | None = None, pose: Pose = (0.0, 0.0, 0.0)
@@ -114,12 +167,12 @@ class Mapper:
         then relates to the saved map (usually as a duplicate of the ASR it stands in). Saved ASRs
         keep their records but not their views, so they are matched, not re-entered."""
         m = cls(params)
-        m.globalmap = load_globalmap(doc, m.params.cycles)
-        m.asrs = dict(m.globalmap.asrs)
-        m._next_id = max(m.asrs, default=0) + 1
-        if m.globalmap.current is not None:
-            m._resume = (m.globalmap.current, tuple(pose))
-        m.globalmap.current = None
+        m._gm = load_globalmap(doc, m.params.cycles)
+        m._asrs = dict(m._gm.asrs)
+        m._next_id = max(m._asrs, default=0) + 1
+        if m._gm.current is not None:
+            m._resume = (m._gm.current, tuple(pose))
+        m._gm.current = None
         return m
 
     # --- poses -------------------------------------------------------------------------------------
@@ -137,6 +190,7 @@ class Mapper:
 
     def viewpoints(self, asr: int) -> list[Pose]:
         """The poses (that ASR's frame) from which ASR ``asr``'s views were taken."""
+        self._settle()
         return list(self._builders[asr].viewpoints)
 
     # --- inputs ------------------------------------------------------------------------------------
@@ -168,18 +222,33 @@ class Mapper:
         return interpolate(self._odom_pose[i - 1], self._odom_pose[i], f)
 
     def add_scan(self, scan: Scan) -> list[Event]:
-        """Localise, grow the current ASR and detect exit crossings; returns the events."""
+        """Localise, grow the current ASR and detect exit crossings; returns the events (those of
+        the previous viewpoint's view first, see "Pipelining" in the module docstring)."""
+        start = self._scan_start = time.perf_counter()
+        self.timing = {}
+        if self._pending is not None:
+            self._settle_labels()  # the union needs the labels (gates) of the view before
+        self._settle_view()
+        self._settle_creation()
+        own = self._scan(scan)
+        if self._stale is not None and time.perf_counter() - start < _SPARE:
+            self._settle_labels()  # this scan had time to spare
+        out, self._outbox = self._outbox, []
+        return out + own if out else own
+
+    def _scan(self, scan: Scan) -> list[Event]:
         tic = time.perf_counter()
         odo = self.odometry_at(scan.t)
         if odo is None:
             odo = self._last_odom or (0.0, 0.0, 0.0)
         pts = scan_points(scan, self.params)
-        timing = self.timing = {"points": time.perf_counter() - tic}
+        timing = self.timing
+        timing["points"] = time.perf_counter() - tic
         if self.current is None:
             self._last_odom = odo
             origin: Pose = (0.0, 0.0, 0.0)
             if self._resume is not None:
-                origin = compose(self.asrs[self._resume[0]].origin, self._resume[1])
+                origin = compose(self._asrs[self._resume[0]].origin, self._resume[1])
             return self._new_asr(scan.t, origin, None, pts)
         delta = between(self._last_odom, odo)
         self._last_odom = odo
@@ -189,7 +258,11 @@ class Mapper:
         self.localiser.correct(pts.xy)
         pose = self.pose
         timing["localise"] = time.perf_counter() - tic
-        crossed = self._crossed_exit(prev, pose) or self._left_elsewhere(prev, pose)
+        # inside the polygon the robot neither crossed an exit nor left elsewhere (distance 0)
+        inside = bool(shapely.contains_xy(self._builders[self.current].polygon, pose[0], pose[1]))
+        crossed = self._crossed_exit(prev, pose, inside)
+        if crossed is None and not inside:
+            crossed = self._left_elsewhere(prev, pose)
         if crossed is not None:
             return self._leave_through(scan.t, crossed[0], crossed[1], pose, pts)
         if self._is_viewpoint(pose):
@@ -207,42 +280,111 @@ class Mapper:
             or abs(math.remainder(pose[2] - last[2], 2.0 * math.pi)) >= p.view_turn
         )
 
-    def _add_view(self, t: float, pts: ScanPoints, pose: Pose) -> list[Event]:
+    def _add_view(
+        self, t: float, pts: ScanPoints, pose: Pose, defer: bool = True, late: bool = False
+    ) -> list[Event]:
+        """Take this scan as a view of the current ASR from ``pose``: now, or pipelined (``defer``;
+        ``late``: even its surfaces, exits and view wait for the next scan)."""
         p = self.params
-        timing = self.timing
-        tic = time.perf_counter()
-        surf = extract_surfaces(pts, p)
-        tac = time.perf_counter()
-        covers = find_covers(surf, p)
-        toc = time.perf_counter()
-        view = build_view(surf, p, covers)
-        tuc = time.perf_counter()
-        builder = self._builders[self.current]
-        changed = builder.add_view(view, pose)
         self.localiser.add_reference(pts.xy, pose)
         refs = self._refs.setdefault(self.current, [])
         refs.append((pts.xy, pose))
         if len(refs) > p.reference_scans + 1:
             del refs[1]  # the first view anchors the frame, as in the localiser
         self._last_view = pose
-        timing.update(extract=tac - tic, exits=toc - tac, view=tuc - toc, asr=time.perf_counter() - tuc)
-        if not changed:
+        pipelined = defer and self.defer_views
+        view = None if late and pipelined else self._view(pts)
+        self._pending = (t, self.current, pts, pose, view)
+        if pipelined:
             return []
+        before = len(self._outbox)  # events of earlier views stay in the outbox
+        self._settle()
+        out, self._outbox = self._outbox[before:], self._outbox[:before]
+        return out
+
+    def _view(self, pts: ScanPoints) -> View:
+        """Surfaces, exits and the truncated view of one scan (robot frame)."""
+        p = self.params
+        tic = time.perf_counter()
+        surf = extract_surfaces(pts, p)
+        tac = time.perf_counter()
+        covers = find_covers(surf, p)
+        toc = time.perf_counter()
+        view = build_view(surf, p, covers)
+        self.timing.update(extract=tac - tic, exits=toc - tac, view=time.perf_counter() - toc)
+        return view
+
+    def _settle(self) -> None:
+        """Finish every stage of the views still waiting; their events go to the outbox."""
+        self._settle_labels()
+        self._settle_view()
+        self._settle_creation()
+        self._settle_labels()
+
+    def _settle_creation(self) -> None:
+        """Finish entering the ASR created by the last scan: relabel its first view (whose
+        ``AsrUpdated`` is not reported, as when done at once), then :meth:`_entered_new`."""
+        if self._creating is None:
+            return
+        t, old, e, at, pose = self._creating
+        self._creating = None
+        tic = time.perf_counter()
+        self._stale = None
+        self._builders[self.current].ensure_labels()
+        self.timing["labels"] = time.perf_counter() - tic
+        self._outbox += self._entered_new(t, old, e, at, pose)
+
+    def _settle_view(self) -> None:
+        """Union the waiting view into its ASR (its relabelling then waits, when deferring)."""
+        if self._pending is None:
+            return
+        t, aid, pts, pose, view = self._pending
+        self._pending = None
+        if view is None:
+            view = self._view(pts)
+        tic = time.perf_counter()
+        changed = self._builders[aid].add_view(view, pose, relabel=False)
+        self.timing["asr"] = time.perf_counter() - tic
+        if changed:
+            self._stale = (t, aid)
+            if not self.defer_views:
+                self._settle_labels()
+
+    def _settle_labels(self) -> None:
+        """Relabel the ASR the last union grew, then its AsrUpdated and the cycle check."""
+        if self._stale is None:
+            return
+        t, aid = self._stale
+        self._stale = None
+        timing = self.timing
+        tic = time.perf_counter()
+        builder = self._builders[aid]
+        builder.ensure_labels()
+        timing["labels"] = time.perf_counter() - tic
         a = builder.asr
-        events: list[Event] = [AsrUpdated(t, a.id, a.area, a.scans)]
-        if self.globalmap.current == a.id:  # not while the ASR is being created
+        self._outbox.append(AsrUpdated(t, a.id, a.area, a.scans))
+        if self._gm.current == a.id:  # not while the ASR is being created
             tic = time.perf_counter()
-            events += self.globalmap.updated(a.id, t)
+            self._outbox += self._gm.updated(a.id, t)
             timing["cycles"] = time.perf_counter() - tic
-        return events
 
     # --- crossing exits (§4): small methods, meant to be extended --------------------------------
-    def _crossed_exit(self, prev: Pose, pose: Pose) -> tuple[Exit, tuple[float, float]] | None:
+    def _crossed_exit(
+        self, prev: Pose, pose: Pose, inside: bool | None = None
+    ) -> tuple[Exit, tuple[float, float]] | None:
         """The exit of the current ASR crossed between ``prev`` and ``pose`` (ASR frame) and where,
-        if the robot now lies outside the ASR polygon; else None."""
+        if the robot now lies outside the ASR polygon (``inside``: whether it lies inside, if known);
+        else None."""
         b = self._builders[self.current]
+        if not self._armed and self._entry is not None and self._entry[0] == self.current:
+            self._settle_labels()  # the entry hysteresis reads the exits
         ignore = self._entry_to_ignore(b, pose)
-        if not b.asr.exits or b.polygon.contains(shapely.Point(pose[:2])):
+        if inside is None:
+            inside = bool(shapely.contains_xy(b.polygon, pose[0], pose[1]))
+        if inside:
+            return None
+        self._settle_labels()  # outside: the exits are needed, and leaving needs the last check done
+        if not b.asr.exits:
             return None
         for e in b.asr.exits:
             if e.id == ignore:
@@ -279,6 +421,7 @@ class Mapper:
         else:
             pts = shapely.get_coordinates(hit)
             at = shapely.Point(pts[np.argmin(np.hypot(*(pts - np.asarray(prev[:2])).T))])
+        self._settle_labels()
         e = b.open_exit((at.x, at.y))
         return e, (at.x, at.y)
 
@@ -288,11 +431,20 @@ class Mapper:
         """Leave through exit ``e`` (crossed at ``at``): re-enter the ASR it is known to lead to, or
         create the ASR beyond it with its frame at ``pose``."""
         old = self.current
-        known = self.globalmap.lookup(old, e.id)
+        self._loc_refs[old] = self.localiser.reference()  # for a re-entry into old
+        known = self._gm.lookup(old, e.id)
         if known is not None and known.dst in self._builders:
             return self._reenter(t, known, pose, pts)
-        origin = compose(self.asrs[old].origin, pose)
+        origin = compose(self._asrs[old].origin, pose)
         events = self._new_asr(t, origin, old, pts)
+        if self.defer_views:  # the rest once its first view is in, at the start of the next scan
+            self._creating = (t, old, e, at, pose)
+            return events
+        return events + self._entered_new(t, old, e, at, pose)
+
+    def _entered_new(self, t: float, old: int, e: Exit, at: tuple[float, float], pose: Pose) -> list[Event]:
+        """The new (current) ASR, its first view in, entered from ``old`` through ``e``: its entrance,
+        the transition and the cycle check."""
         new = self.current
         e.to = new
         via = self._entrance(new, between(pose, (at[0], at[1], 0.0))[:2])
@@ -300,9 +452,9 @@ class Mapper:
             via.to = old
         via_id = via.id if via is not None else None
         self._entry, self._armed = (new, via_id), False
-        events.append(ExitCrossed(t, old, e.id, new, via_id, True))
+        events: list[Event] = [ExitCrossed(t, old, e.id, new, via_id, True)]
         tic = time.perf_counter()
-        events += self.globalmap.add_created(self.asrs[new], old, e.id, via_id, pose, t)
+        events += self._gm.add_created(self._asrs[new], old, e.id, via_id, pose, t)
         self.timing["cycles"] = time.perf_counter() - tic
         return events
 
@@ -312,22 +464,27 @@ class Mapper:
         new_pose = compose(inverse(tr.rel), pose)
         self.current = tr.dst
         self.localiser.reset(new_pose)
-        for xy, at in self._refs.get(tr.dst, []):
-            self.localiser.add_reference(xy, at)
+        kept = self._loc_refs.get(tr.dst)
+        if kept is not None:  # the reference it had when the robot left it (its views since: none)
+            self.localiser.restore_reference(kept)
+        else:
+            self.localiser.add_references(self._refs.get(tr.dst, []))
         # The builder joins consecutive viewpoints with a swept corridor; the robot did not walk
         # from the last visit's viewpoint to here, so start the sweep afresh at the new pose.
         self._builders[tr.dst].viewpoints.append(new_pose)
         self._last_view = None
         self._entry, self._armed = (tr.dst, tr.via), False
         events: list[Event] = [ExitCrossed(t, tr.src, tr.exit, tr.dst, tr.via, False)]
-        events += self.globalmap.enter(tr.dst, tr.src, t)
-        events += self._add_view(t, pts, new_pose)
+        events += self._gm.enter(tr.dst, tr.src, t)
+        # this scan already left an ASR: when busy, even the view waits for the next scan
+        busy = time.perf_counter() - self._scan_start > _SPARE
+        events += self._add_view(t, pts, new_pose, late=busy)
         return events
 
     def _entrance(self, asr: int, at: tuple[float, float]) -> Exit | None:
         """The exit of ``asr`` nearest the crossing point ``at`` (its frame), within a passage width."""
         best, best_d = None, 2.0 * self.params.passage_width
-        for e in self.asrs[asr].exits:
+        for e in self._asrs[asr].exits:
             a, b = np.asarray(e.a), np.asarray(e.b)
             ab = b - a
             tt = float(np.clip(np.dot(np.asarray(at) - a, ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0))
@@ -342,14 +499,16 @@ class Mapper:
         self._next_id += 1
         b = AsrBuilder(aid, t, origin, self.params)
         self._builders[aid] = b
-        self.asrs[aid] = b.asr
+        self._asrs[aid] = b.asr
         self.current = aid
         self.localiser.reset()
         self._last_view = None
-        self._add_view(t, pts, (0.0, 0.0, 0.0))
+        # the first view is unioned at once (or, pipelined, first thing next scan): the entrance
+        # and the cycle check need it
+        self._add_view(t, pts, (0.0, 0.0, 0.0), defer=entered_from is not None)
         events: list[Event] = [AsrCreated(t, aid, origin, entered_from)]
         if entered_from is None:
             # The first ASR (or the first after from_document, checked against the saved map).
-            self.globalmap.add_first(b.asr)
-            events += self.globalmap.check(aid, t)
+            self._gm.add_first(b.asr)
+            events += self._gm.check(aid, t)
         return events

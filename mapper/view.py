@@ -94,7 +94,8 @@ def build_view(surf: Surfaces, p: MapperParams, covers: Covers | None = None) ->
 
 def _drop_repeats(v: np.ndarray, labels: list[str]) -> tuple[np.ndarray, list[str]]:
     """Remove zero-length edges; the surviving edge keeps the label of the non-degenerate one."""
-    step = np.hypot(*(np.roll(v, -1, axis=0) - v).T)
+    d = np.concatenate([v[1:], v[:1]]) - v
+    step = np.hypot(d[:, 0], d[:, 1])
     if (step > 1e-9).all():
         return v, labels
     keep = step > 1e-9  # vertex i is kept when its outgoing edge has length

@@ -449,6 +449,13 @@ class MapperWorker:
                 log.exception("the mapper failed on the scan at t=%.3f", getattr(scan, "t", math.nan))
             finally:
                 self.busy_since = None
+        try:  # the last viewpoint's view waits for a next scan (see "Pipelining" in mapper.mapper)
+            events = list(self.mapper.flush())
+            if events:
+                self.commit_and_publish(events)
+        except Exception:
+            self.counters["mapper_errors"] += 1
+            log.exception("the mapper failed on its last view")
 
     def process(self, scan: Any) -> list[Any]:
         """Map one driver scan; returns the mapper's events."""

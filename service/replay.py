@@ -117,7 +117,7 @@ def replay(
     if truth is not None and not isinstance(truth, Track):
         truth_track = truth_from_log(truth)
     total = count_scans(path) if progress else 0
-    mapper = Mapper(params)
+    mapper = Mapper(params, defer_views=True)  # pipelined: the same map, see mapper.mapper
     odometry = Track()
     events: collections.Counter = collections.Counter()
     scans = 0
@@ -140,6 +140,11 @@ def replay(
             events[e.kind] += 1
         if progress and scans % 50 == 0 and isinstance(reading, Scan):
             progress(scans, total, spent)
+    tic = clock()
+    out = mapper.flush()  # the last viewpoint's view (see "Pipelining" in mapper.mapper)
+    spent += clock() - tic
+    for e in out:
+        events[e.kind] += 1
     if progress:
         progress(scans, max(total, scans), spent)
     if scans == 0:

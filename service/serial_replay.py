@@ -242,6 +242,14 @@ class _RecordingMapper:
             self.events[e.kind] += 1
         return out
 
+    def flush(self):
+        tic = time.perf_counter()
+        out = list(self.mapper.flush() or ())
+        self.seconds += time.perf_counter() - tic
+        for e in out:
+            self.events[e.kind] += 1
+        return out
+
     def __getattr__(self, name: str):
         return getattr(self.mapper, name)
 

@@ -89,3 +89,24 @@ def test_histogram_match_recovers_a_known_offset():
     err = between(true, loc.pose)
     # from 0.144 m and 3° off to within one 5 cm histogram bin and a degree
     assert math.hypot(err[0], err[1]) < 0.05 and abs(err[2]) < math.radians(1.0)
+
+
+def test_a_restored_reference_matches_exactly_as_the_rebuilt_one():
+    """Re-entering an ASR restores the reference the robot left it with instead of rebuilding it."""
+    p = MapperParams(laser_x=0.0, laser_y=0.0)
+    walls = box(0.0, 0.0, 6.0, 4.0)
+    views = [(1.0 + 0.3 * k, 2.0, 0.1 * k) for k in range(7)]
+    refs = [(scan_points(cast(walls, v, n=181, max_range=30.0), p).xy, (v[0] - 1.0, v[1] - 2.0, v[2]))
+            for v in views]
+    here = scan_points(cast(walls, (2.1, 2.05, 0.33), n=181, max_range=30.0), p).xy
+    rebuilt, restored = Localiser(p), Localiser(p)
+    rebuilt.reset((1.05, 0.0, 0.3))
+    rebuilt.add_references(refs)
+    for xy, at in refs:
+        restored.add_reference(xy, at)
+    kept = restored.reference()
+    restored.reset((1.05, 0.0, 0.3))
+    restored.restore_reference(kept)
+    a, b = rebuilt.correct(here), restored.correct(here)
+    assert a is not None and a == b
+    assert np.array_equal(rebuilt.kf.x, restored.kf.x) and np.array_equal(rebuilt.kf.P, restored.kf.P)

@@ -137,15 +137,22 @@ class LockedMapper:
 
     def add_scan(self, scan: Scan):
         with self.lock:
-            events = list(self.mapper.add_scan(scan) or ())
-            for e in events:
-                if getattr(e, "kind", "") == "asr_created":
-                    self.entered_from[int(e.asr)] = getattr(e, "entered_from", None)
-                if getattr(e, "kind", "") != "asr_updated":
-                    self.events.append(e)
-            if events:
-                self._dirty = True
-            return events
+            return self._record(list(self.mapper.add_scan(scan) or ()))
+
+    def flush(self):
+        """The events of the view still waiting (see "Pipelining" in mapper.mapper)."""
+        with self.lock:
+            return self._record(list(self.mapper.flush() or ()))
+
+    def _record(self, events: list[Any]) -> list[Any]:
+        for e in events:
+            if getattr(e, "kind", "") == "asr_created":
+                self.entered_from[int(e.asr)] = getattr(e, "entered_from", None)
+            if getattr(e, "kind", "") != "asr_updated":
+                self.events.append(e)
+        if events:
+            self._dirty = True
+        return events
 
     def __getattr__(self, name: str):
         return getattr(self.mapper, name)
@@ -335,6 +342,7 @@ class DirectSim:
             if self.progress is not None and self.t >= next_progress:
                 next_progress = self.t + 1.0
                 self.progress(self.t, self.command.status, self.mapper)
+        self.mapper.flush()
         doc = map_document(self.mapper.mapper)
         s = summarise(self.world, doc, self.robot, self.odometry, self.mapper.entered_from, self.explorer,
                       self.t, time.perf_counter() - wall0, finished)
