@@ -183,7 +183,7 @@ def run(args) -> dict:
 
     from laser.emulator import LMS2xxEmulator
     from laser.sources import room
-    from laser.timing import b0_size, transmit_time
+    from laser.timing import b0_size, sweep_time, transmit_time
     from pioneer.emulator import PioneerEmulator
     from service.bus import client_config
 
@@ -233,7 +233,9 @@ def run(args) -> dict:
             laser.close()
             robot.close()
 
-    air = transmit_time(b0_size(181), BAUD)
+    # A pose's t is its scan's first-ray stamp: the telegram's last byte less its transfer and the
+    # mirror's sweep (laser.reader). Match it to the telegram written just after that.
+    air = transmit_time(b0_size(181), BAUD) + sweep_time(180, 1.0)
     lat = []
     for received, t in poses:
         i = bisect.bisect_right(written, t + air + 1e-3) - 1
