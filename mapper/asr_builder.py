@@ -68,6 +68,8 @@ def _nearest_segment(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.nda
     pi, si, d = _pairs_within(p, seg, tol)
     e = np.zeros(len(p), dtype=int)
     dist = np.full(len(p), np.inf)
+    if len(pi) == 0:
+        return e, dist
     order = np.lexsort((d, pi))
     first = np.append(True, np.diff(pi[order]) != 0)
     k = order[first]
