@@ -208,8 +208,10 @@ class Localiser:
         h *= h
         norm_u, norm_v = math.sqrt(h[: self._offsets[1]].sum()), math.sqrt(h[self._offsets[1] :].sum())
         qs = (
-            _norm_peak(float(cu.max()), norm_u, self._huv_norm[0]),
-            _norm_peak(float(cv.max()), norm_v, self._huv_norm[1]),
+            _norm_peak(float(cu.max()), norm_u, self._huv_norm[0]) * _prominence(cu, p.prominence_bins,
+                                                                                 p.prominence_full),
+            _norm_peak(float(cv.max()), norm_v, self._huv_norm[1]) * _prominence(cv, p.prominence_bins,
+                                                                                 p.prominence_full),
         )
         ra = _rot(self._alpha)
         corr = ra @ shifts
@@ -233,6 +235,22 @@ def _norm_peak(peak: float, norm_a: float, norm_b: float) -> float:
     """Normalised correlation peak (cosine similarity of the best-aligned histograms), 0..1."""
     den = norm_a * norm_b
     return peak / den if den > 0 else 0.0
+
+
+def _prominence(c: np.ndarray, bins: int, full: float) -> float:
+    """How distinct the peak of a translation correlation ``c`` is, 0..1: 1 - (the largest value
+    ``bins`` or more bins away from the peak) / (the peak), scaled so that ``full`` counts as 1.
+
+    A histogram without structure along an axis (the walls of a corridor, seen along it) correlates
+    almost equally at every shift: its cosine similarity is high, but its peak sits wherever the
+    two point sets' extents overlap most, which drags the estimate back towards the reference."""
+    i = int(np.argmax(c))
+    peak = float(c[i])
+    if peak <= 0.0:
+        return 0.0
+    far = np.abs(np.arange(len(c)) - i) >= bins
+    rest = float(c[far].max()) if far.any() else 0.0
+    return float(np.clip((1.0 - rest / peak) / full, 0.0, 1.0))
 
 
 def _mahalanobis2(y: np.ndarray, s: np.ndarray) -> float:

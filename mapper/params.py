@@ -108,6 +108,12 @@ class MapperParams:
     max_translation: float = 0.40
     #: Correlation quality (0..1, normalised cross-correlation peak) below which a match is rejected.
     min_quality: float = 0.35
+    #: bins, fraction. A translation axis counts only as much as its correlation peak stands out:
+    #: 1 - (the best shift at least ``prominence_bins`` bins from the peak) / (the peak), with
+    #: ``prominence_full`` and above counting fully (the quality is multiplied by it). Along a
+    #: corridor the correlation is nearly flat and the axis is then left to odometry.
+    prominence_bins: int = 3
+    prominence_full: float = 0.5
     #: m, rad. Measurement noise (1 sigma) of a perfect match (quality 1); it grows as 1/quality.
     match_sigma_xy: float = 0.04
     match_sigma_theta: float = math.radians(1.0)
