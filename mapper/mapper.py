@@ -272,6 +272,11 @@ class Mapper:
         here = shapely.Point(pose[:2])
         if b.polygon.is_empty or b.polygon.distance(here) <= self.params.leave_margin:
             return None
+        if b.polygon.area < self.params.cycles.min_area:
+            # A sliver of a first view (taken on a doorway, the view mostly cut off) is no place to
+            # leave: an exit opened on it can face anywhere, and its gate would stop the ASR from
+            # growing round the robot. The next views grow it.
+            return None
         ring = b.polygon.exterior
         hit = ring.intersection(shapely.LineString([prev[:2], pose[:2]]))
         if hit.is_empty:
@@ -295,7 +300,10 @@ class Mapper:
         events = self._new_asr(t, origin, old, pts)
         new = self.current
         e.to = new
-        via = self._entrance(new, between(pose, (at[0], at[1], 0.0))[:2])
+        local_at = between(pose, (at[0], at[1], 0.0))[:2]
+        via = self._entrance(new, local_at)
+        if via is None:
+            via = self._open_entrance(new, local_at)
         if via is not None:
             via.to = old
         via_id = via.id if via is not None else None
@@ -305,6 +313,26 @@ class Mapper:
         events += self.globalmap.add_created(self.asrs[new], old, e.id, via_id, pose, t)
         self.timing["cycles"] = time.perf_counter() - tic
         return events
+
+    def _open_entrance(self, asr: int, at: tuple[float, float]) -> Exit | None:
+        """The entrance of a new ASR whose first view shows none (the laser looks ahead: the doorway
+        just passed is behind the robot), opened where the robot came in (``at``, its frame), so the
+        ASR has a way back and its gate keeps later views from growing back through the doorway.
+
+        Only when the first view is a real area and the exit opened faces backwards (its outside,
+        right of a -> b, away from the robot's heading, +x): on a sliver of a first view the chord
+        can come out anywhere, and a gate ahead of the robot would stop the ASR from growing."""
+        b = self._builders[asr]
+        if b.polygon.area < self.params.cycles.min_area:
+            return None
+        saved = (b.exit_segments, list(b.asr.exits), b.asr.boundary, list(b.asr.edges), b._next_exit)
+        e = b.open_exit(at)
+        d = np.subtract(e.b, e.a)
+        outward_x = d[1] / max(float(np.hypot(*d)), 1e-12)  # x of the right normal (d_y, -d_x)
+        if outward_x < -0.5 and e.midpoint[0] < 0.3:
+            return e
+        b.exit_segments, b.asr.exits, b.asr.boundary, b.asr.edges, b._next_exit = saved
+        return None
 
     def _reenter(self, t: float, tr: Transition, pose: Pose, pts: ScanPoints) -> list[Event]:
         """Re-enter the known ASR ``tr.dst``: hand the pose over (``tr.rel`` is its frame seen from
