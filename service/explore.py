@@ -84,6 +84,14 @@ class ExploreParams:
     turn_in_place: float = 0.6
     #: m. Steering looks this far ahead for a free heading.
     lookahead: float = 1.0
+    #: m. Paths inside the ASR: a grid of this cell size over the ASR polygon shrunk by
+    #: ``path_clearance`` (the robot's half width and a margin), searched when the straight line
+    #: to a target leaves it; the robot steers to the path point ``path_lookahead`` ahead, and
+    #: plans again every ``replan_time`` s (the polygon grows) or when it is off the path.
+    path_cell: float = 0.1
+    path_clearance: float = 0.3
+    path_lookahead: float = 0.8
+    replan_time: float = 3.0
     #: m. Lateral margin added to the robot's half width when judging a heading free (steering).
     steer_margin: float = 0.12
     #: m. Lateral margin of the safety stop's corridor, and of steering through a doorway (0.9 m
@@ -111,8 +119,19 @@ class ExploreParams:
     recovery_turn: float = 1.2
     #: How many times exits that failed are all forgotten and tried again before exploration ends.
     retries: int = 2
+    #: An exit (or backtrack through it) chosen this many times in one round fails: the robot
+    #: goes round in a loop (its far side sends it back, the mapper flips between two ASRs).
+    max_attempts: int = 4
+    #: s. Choices of one exit goal closer together than this count as one attempt.
+    attempt_spacing: float = 10.0
     #: m. Exits of a duplicate and of its matched ASR within this distance (global frame) are one exit.
     duplicate_radius: float = 1.0
+    #: m. An exit needs no visit when the space beyond it is already mapped: the points this far
+    #: beyond it (beyond the ASR polygon, on the exit's normal) all lie inside other ASRs (global
+    #: frame, shrunk by ``known_margin``). In an open-plan room every gap between tables is an exit
+    #: into the same room.
+    known_depths: tuple[float, ...] = (0.5, 1.0, 1.5)
+    known_margin: float = 0.2
     #: m, robot frame. Robot front (from the turning centre), half width, laser position.
     front: float = 0.210
     half_width: float = 0.2125
@@ -300,6 +319,8 @@ class Planner:
         self.memory = memory or Memory()
         self._pending_key: tuple | None = None
         self._pending: list[tuple[float, float]] = []
+        self._known_key: tuple | None = None
+        self._known: list[tuple[int, shapely.Geometry]] = []
 
     # -- bookkeeping ---------------------------------------------------------------------------
     def looked_at(self, asr: int, point: tuple[float, float]) -> None:
@@ -354,6 +375,8 @@ class Planner:
         edges = _edges(view) if edges is None else edges
         if (asr.id, ex.id) in edges:
             return True
+        if self._known_beyond(view, asr, ex):
+            return True
         orig = view.asrs.get(asr.duplicate_of) if asr.duplicate_of is not None else None
         if orig is not None:
             mid = transform_points(asr.origin, np.array([ex.midpoint]))[0]
@@ -364,6 +387,40 @@ class Planner:
                 if np.hypot(*(omid - mid)) < self.p.duplicate_radius:
                     return True
         return False
+
+    def _known_beyond(self, view: MapView, asr: ASR, ex: Exit) -> bool:
+        """Whether the space beyond ``ex`` is inside ASRs other than ``asr`` (see ``known_depths``)."""
+        if not self.p.known_depths:
+            return False
+        n = exit_normal(asr, ex)
+        mid = np.asarray(ex.midpoint, dtype=float)
+        depth = _depth_beyond(asr, mid, n)
+        pts = transform_points(asr.origin, np.array([mid + (depth + d) * n for d in self.p.known_depths]))
+        for other in self._known_areas(view):
+            if other[0] == asr.id:
+                continue
+            inside = shapely.contains_xy(other[1], pts[:, 0], pts[:, 1])
+            pts = pts[~inside]
+            if not len(pts):
+                return True
+        return False
+
+    def _known_areas(self, view: MapView) -> list[tuple[int, shapely.Geometry]]:
+        """Every ASR's polygon in the global frame, shrunk by ``known_margin`` (cached while the ASRs'
+        boundaries and origins stay the same)."""
+        key = tuple((a.id, id(a.boundary), len(a.boundary), tuple(a.origin)) for a in view.asrs.values())
+        if self._known_key != key:
+            areas = []
+            for a in view.asrs.values():
+                if len(a.boundary) < 3:
+                    continue
+                poly = shapely.make_valid(shapely.Polygon(transform_points(a.origin, np.asarray(a.boundary))))
+                poly = poly.buffer(-self.p.known_margin)
+                if not poly.is_empty:
+                    shapely.prepare(poly)
+                    areas.append((a.id, poly))
+            self._known_key, self._known = key, areas
+        return self._known
 
     def unexplored_exits(self, view: MapView, asr: ASR, edges: dict | None = None) -> list[Exit]:
         """Unexplored exits of ``asr``, widest first."""
@@ -405,7 +462,8 @@ class Planner:
         n = exit_normal(asr, ex)
         mid = np.asarray(ex.midpoint)
         stage = tuple(float(v) for v in mid - self.p.stage_distance * n)
-        through = tuple(float(v) for v in mid + self.p.through_distance * n)
+        depth = _depth_beyond(asr, mid, n)
+        through = tuple(float(v) for v in mid + (depth + self.p.through_distance) * n)
         here = (view.pose[0], view.pose[1])
         return Goal(kind, asr.id, target=_inside_point(free, stage, here), exit=ex.id,  # type: ignore[arg-type]
                     through=through, path=tuple(path), exit_mid=ex.midpoint)  # type: ignore[arg-type]
@@ -444,6 +502,20 @@ class Planner:
                     prev[b] = (a, e)
                     heapq.heappush(todo, (nd, b))
         return None
+
+
+def _depth_beyond(asr: ASR, mid: np.ndarray, n: np.ndarray, reach: float = 2.0) -> float:
+    """How far (m, at most ``reach``) from ``mid`` along ``n`` the ray leaves the ASR polygon: 0 for
+    an exit on the boundary. An exit is the chord of a run of exit edges, and a run that bends
+    (pieced together from several views) leaves polygon beyond the chord: the mapper sees the
+    robot leave only once it is outside the polygon."""
+    poly = shapely.make_valid(asr.polygon)
+    probe = mid + np.outer(np.arange(0.05, reach + 1e-9, 0.05), n)
+    inside = shapely.contains_xy(poly, probe[:, 0], probe[:, 1])
+    if not inside.any():
+        return 0.0
+    last = int(np.flatnonzero(inside)[-1])
+    return float(min(reach, 0.05 * (last + 1)))
 
 
 def _centre_distance(a: ASR, b: ASR) -> float:
@@ -501,6 +573,57 @@ def exit_of(view: MapView, asr: ASR, exit_id: str) -> Exit | None:
     ends = transform_points(inverse(asr.origin), transform_points(src.origin, np.array([ex.a, ex.b])))
     a, b = ends.tolist()
     return Exit(exit_id, (a[0], a[1]), (b[0], b[1]), src.id)
+
+
+def plan_path(polygon: shapely.Geometry, start: tuple[float, float], goal: tuple[float, float],
+              cell: float, clearance: float) -> np.ndarray | None:
+    """Shortest path (K, 2) from ``start`` to ``goal`` through ``polygon`` shrunk by ``clearance``
+    (m, one frame), on a grid of ``cell`` m with 8 neighbours; its first and last points are the
+    free cells nearest ``start`` and ``goal`` (each within 4 cells of free space, else None)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    free = shapely.make_valid(polygon).buffer(-clearance)
+    if free.is_empty:
+        return None
+    x0, y0, x1, y1 = free.bounds
+    nx, ny = int((x1 - x0) / cell) + 2, int((y1 - y0) / cell) + 2
+    if nx * ny > 400_000:
+        return None
+    xs, ys = x0 + cell * np.arange(nx), y0 + cell * np.arange(ny)
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    ok = shapely.contains_xy(free, gx, gy)
+    if not ok.any():
+        return None
+    idx = -np.ones((nx, ny), dtype=int)
+    idx[ok] = np.arange(int(ok.sum()))
+    pts = np.column_stack([gx[ok], gy[ok]])
+
+    def nearest(q: tuple[float, float]) -> int | None:
+        d = np.hypot(pts[:, 0] - q[0], pts[:, 1] - q[1])
+        k = int(np.argmin(d))
+        return k if d[k] <= 4.0 * cell else None
+
+    a, b = nearest(start), nearest(goal)
+    if a is None or b is None:
+        return None
+    rows, cols, w = [], [], []
+    for di, dj in ((1, 0), (0, 1), (1, 1), (1, -1)):
+        src = idx[max(0, -di): nx - max(0, di), max(0, -dj): ny - max(0, dj)]
+        dst = idx[max(0, di): nx - max(0, -di) or None, max(0, dj): ny - max(0, -dj) or None]
+        m = (src >= 0) & (dst >= 0)
+        rows.append(src[m])
+        cols.append(dst[m])
+        w.append(np.full(int(m.sum()), cell * math.hypot(di, dj)))
+    n = len(pts)
+    graph = coo_matrix((np.concatenate(w), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+    dist, pred = dijkstra(graph.tocsr(), directed=False, indices=a, return_predecessors=True)
+    if not np.isfinite(dist[b]):
+        return None
+    path = [b]
+    while path[-1] != a:
+        path.append(int(pred[path[-1]]))
+    return pts[path[::-1]]
 
 
 # --- the controller ---------------------------------------------------------------------------------
@@ -571,6 +694,12 @@ class Explorer:
         self._near = np.zeros((0, 2))
         self._last: Command | None = None
         self._unjams: list[float] = []
+        self._asr: ASR | None = None
+        self._attempts: dict[tuple, tuple[int, float]] = {}
+        self._t = 0.0
+        self._path: np.ndarray | None = None
+        self._path_key: tuple | None = None
+        self._path_t = -math.inf
         self.finished = False
         self.counts = {"goals": 0, "unknown": 0, "exits": 0, "backtracks": 0, "stuck": 0, "failed": 0,
                        "unjam": 0}
@@ -587,6 +716,17 @@ class Explorer:
             self.counts["goals"] += 1
             self.counts[{"unknown": "unknown", "exit": "exits", "backtrack": "backtracks"}[goal.kind]] += 1
             log.debug("goal %s", goal)
+
+    def _too_often(self, goal: Goal) -> bool:
+        """Count the choice of an exit goal; True once it was chosen ``max_attempts`` times this round."""
+        if goal.kind not in ("exit", "backtrack") or goal.exit is None or goal.asr is None:
+            return False
+        key = (self.planner.memory.retries, goal.asr, goal.exit)
+        n, last = self._attempts.get(key, (0, -math.inf))
+        if self._t - last >= self.p.attempt_spacing:
+            n += 1  # choices in quick succession (an unknown region came and went) are one attempt
+        self._attempts[key] = (n, self._t)
+        return n > self.p.max_attempts
 
     def _give_up(self, why: str) -> None:
         g = self.goal
@@ -675,10 +815,17 @@ class Explorer:
         return self._step(view, points, t)
 
     def _step(self, view: MapView, points: np.ndarray, t: float) -> Command:
+        self._t = t
+        self._asr = view.asrs.get(view.current) if view.current is not None else None
         if view.current in view.asrs:
             self.planner.observe(view.asrs[view.current], view.pose)
         if not self._still_valid(view):
             goal = self._settle(view) or self.planner.plan(view)
+            if self._too_often(goal):
+                self.planner.failed(goal.asr, goal.exit, goal.exit_mid)  # type: ignore[arg-type]
+                log.info("exploration: gave up %s %s in ASR %s (chosen %d times)", goal.kind, goal.exit,
+                         goal.asr, self.p.max_attempts)
+                goal = self.planner.plan(view)
             self._set_goal(goal, t)
         g = self.goal
         assert g is not None
@@ -775,13 +922,15 @@ class Explorer:
 
     def _drive_to(self, target: tuple[float, float], pose: Pose, points: np.ndarray, t: float,
                   status: str, margin: float | None = None) -> Command:
-        dx, dy = target[0] - pose[0], target[1] - pose[1]
-        dist = math.hypot(dx, dy)
-        self._progress(dist, t)
+        dist = math.hypot(target[0] - pose[0], target[1] - pose[1])
+        aim, remaining = self._aim(target, pose, t)
+        self._progress(remaining, t)
         if self._stuck(t):
             return self._start_recovery(points, t)
+        dx, dy = aim[0] - pose[0], aim[1] - pose[1]
         want = wrap(math.atan2(dy, dx) - pose[2])
-        heading = self._steer(want, dist, points, self.p.steer_margin if margin is None else margin)
+        margin = self.p.steer_margin if margin is None else margin
+        heading = self._steer(want, math.hypot(dx, dy), points, margin)
         if heading is None:
             # Nothing free towards the target: turn towards it and let stuck detection decide.
             return self._rotate(want, points, t, f"{status} (blocked)", track=False)
@@ -800,6 +949,44 @@ class Explorer:
             self._blocked_since = None
             return self._start_recovery(points, t)
         return Command(0.0, w, f"{status} (safety stop)")
+
+    def _aim(self, target: tuple[float, float], pose: Pose, t: float) -> tuple[tuple[float, float], float]:
+        """Where to steer now on the way to ``target`` (ASR frame), and the distance left (m): the
+        target itself when the straight line to it stays inside the ASR (or either end lies
+        outside it), else a point ``path_lookahead`` along a path planned inside the ASR."""
+        p = self.p
+        direct = (target, math.hypot(target[0] - pose[0], target[1] - pose[1]))
+        asr = self._asr
+        if asr is None or len(asr.boundary) < 3 or direct[1] < p.path_lookahead:
+            self._path = None
+            return direct
+        key = (asr.id, target)
+        if key != self._path_key or t - self._path_t > p.replan_time or self._off_path(pose):
+            self._path_key, self._path_t = key, t
+            self._path = None
+            poly = shapely.make_valid(asr.polygon)
+            inner = poly.buffer(-p.half_width)
+            line = shapely.LineString([pose[:2], target])
+            ends_in = inner.covers(shapely.Point(pose[:2])) and inner.covers(shapely.Point(target))
+            if ends_in and not inner.covers(line):
+                self._path = plan_path(poly, (pose[0], pose[1]), target, p.path_cell, p.path_clearance)
+        path = self._path
+        if path is None or len(path) < 2:
+            return direct
+        d = np.hypot(path[:, 0] - pose[0], path[:, 1] - pose[1])
+        k = int(np.argmin(d))
+        seg = np.hypot(*np.diff(path[k:], axis=0).T)
+        along = np.concatenate([[0.0], np.cumsum(seg)])
+        j = k + int(np.searchsorted(along, p.path_lookahead))
+        aim = path[min(j, len(path) - 1)]
+        left = float(d[k] + along[-1]) + math.hypot(target[0] - path[-1, 0], target[1] - path[-1, 1])
+        return (float(aim[0]), float(aim[1])), left
+
+    def _off_path(self, pose: Pose) -> bool:
+        path = self._path
+        if path is None:
+            return False
+        return float(np.hypot(path[:, 0] - pose[0], path[:, 1] - pose[1]).min()) > 2.0 * self.p.path_lookahead
 
     def _steer(self, want: float, dist: float, points: np.ndarray, margin: float) -> float | None:
         """The heading (rad, robot frame) nearest ``want`` along which the way is free for
