@@ -76,6 +76,33 @@ def _directions(xy: np.ndarray, max_gap: float) -> np.ndarray:
     return np.mod(np.arctan2(d[ok, 1], d[ok, 0]), np.pi)
 
 
+def _surface_angle(xy: np.ndarray, max_gap: float) -> np.ndarray:
+    """Direction (rad) of the surface through each point of a sweep, from its neighbours two beams
+    either side: close together, or farther apart (a wall seen at a grazing angle) but in line with
+    the point; NaN otherwise (an isolated point: a leg, a corner)."""
+    out = np.full(len(xy), np.nan)
+    if len(xy) < 5:
+        return out
+    d = xy[4:] - xy[:-4]
+    n = np.hypot(d[:, 0], d[:, 1])
+    r = xy[2:-2] - xy[:-4]
+    off = np.abs(d[:, 0] * r[:, 1] - d[:, 1] * r[:, 0]) / np.maximum(n, 1e-9)  # from the chord
+    ok = (n > 0.02) & ((n < max_gap) | ((n < 8.0 * max_gap) & (off < 0.05)))
+    out[2:-2] = np.where(ok, np.arctan2(d[:, 1], d[:, 0]), np.nan)
+    return out
+
+
+def _axis_weights(angle: np.ndarray, alpha: float) -> tuple[np.ndarray, np.ndarray]:
+    """How much each point tells about position along u (the direction ``alpha``) and along v: the
+    component of its surface's normal on that axis. A wall along u says nothing about u (its points
+    only crowd where the laser was, which drags a match back to the reference's viewpoint); a wall
+    across u says all. Isolated points (legs) tell about both."""
+    rel = angle - alpha
+    wu = np.where(np.isnan(rel), 1.0, np.abs(np.sin(rel)))
+    wv = np.where(np.isnan(rel), 1.0, np.abs(np.cos(rel)))
+    return wu, wv
+
+
 def _hist_circular(angles: np.ndarray, nbins: int) -> np.ndarray:
     b = np.floor(angles * (nbins / np.pi)).astype(int) % nbins
     h = np.bincount(b, minlength=nbins).astype(float)
@@ -119,7 +146,8 @@ class Localiser:
         """Start over in a new ASR frame at ``pose`` (its creating scan: the frame's origin)."""
         self.kf.x = np.array(pose, dtype=float)
         self.kf.P = np.diag([1e-6, 1e-6, 1e-8])
-        self._refs: list[tuple[np.ndarray, np.ndarray]] = []  # (points, directions), ASR frame
+        # (points, directions, surface angles), ASR frame
+        self._refs: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._ref_ready = False
 
     @property
@@ -145,13 +173,15 @@ class Localiser:
         pts = transform_points(pose, xy)
         if self._refs and len(self._refs) > self.p.reference_scans:
             del self._refs[1]  # keep the first (anchors the frame) and the latest ones
-        self._refs.append((pts, _directions(pts, self.p.direction_max_gap)))
+        gap = self.p.direction_max_gap
+        self._refs.append((pts, _directions(pts, gap), _surface_angle(pts, gap)))
         self._build_reference()
 
     def _build_reference(self) -> None:
         p = self.p
-        dirs = np.concatenate([d for _, d in self._refs])
-        pts = np.concatenate([r for r, _ in self._refs])
+        dirs = np.concatenate([d for _, d, _ in self._refs])
+        pts = np.concatenate([r for r, _, _ in self._refs])
+        wts = np.concatenate([w for _, _, w in self._refs])
         if len(dirs) < 10 or len(pts) < 10:
             self._ref_ready = False
             return
@@ -163,8 +193,9 @@ class Localiser:
         self._uv0 = uv.min(axis=0) - p.max_translation
         nb = np.floor((uv.max(axis=0) + p.max_translation - self._uv0) / p.xy_bin).astype(int) + 1
         b = np.floor((uv - self._uv0) / p.xy_bin).astype(int)
-        hu = np.bincount(b[:, 0], minlength=nb[0]).astype(float)
-        hv = np.bincount(b[:, 1], minlength=nb[1]).astype(float)
+        wu, wv = _axis_weights(wts, self._alpha)
+        hu = np.bincount(b[:, 0], weights=wu, minlength=nb[0])
+        hv = np.bincount(b[:, 1], weights=wv, minlength=nb[1])
         tw = self._tw
         # u and v histograms side by side, each padded by the search window, then a zero window
         # where scan points beyond the reference fall (index sink - tw)
@@ -200,10 +231,11 @@ class Localiser:
         tw, out = self._tw, len(self._huv) - 1 - self._tw
         idx = np.where((b >= 0) & (b < self._nuv), b + self._offsets, out)  # (K, 2)
         # C(d) = sum_b h_scan(b) h_ref(b + d) = the sum over scan points of h_ref(bin + d)
-        c_uv = self._huv[idx[None, :, :] + self._win].sum(axis=1)  # (2 tw + 1, 2)
+        w = np.column_stack(_axis_weights(_surface_angle(xy, p.direction_max_gap) + th_m, self._alpha))
+        c_uv = np.einsum("skc,kc->sc", self._huv[idx[None, :, :] + self._win], w)  # (2 tw + 1, 2)
         cu, cv = c_uv[:, 0], c_uv[:, 1]
         shifts = np.array([(_peak(cu) - tw) * p.xy_bin, (_peak(cv) - tw) * p.xy_bin])
-        h = np.bincount(idx.ravel(), minlength=len(self._huv)).astype(float)
+        h = np.bincount(idx.ravel(), weights=w.ravel(), minlength=len(self._huv))
         h[out] = 0.0
         h *= h
         norm_u, norm_v = math.sqrt(h[: self._offsets[1]].sum()), math.sqrt(h[self._offsets[1] :].sum())
@@ -213,6 +245,9 @@ class Localiser:
             _norm_peak(float(cv.max()), norm_v, self._huv_norm[1]) * _prominence(cv, p.prominence_bins,
                                                                                  p.prominence_full),
         )
+        # An axis few surfaces face (the along-corridor one) counts only as much as they are there.
+        info = np.clip(w.sum(axis=0) / (len(w) * p.axis_info_full), 0.0, 1.0)
+        qs = (qs[0] * float(info[0]), qs[1] * float(info[1]))
         ra = _rot(self._alpha)
         corr = ra @ shifts
         var_uv = [(p.match_sigma_xy / q) ** 2 if q >= p.min_quality else _NOT_MEASURED for q in qs]

@@ -114,6 +114,10 @@ class MapperParams:
     #: corridor the correlation is nearly flat and the axis is then left to odometry.
     prominence_bins: int = 3
     prominence_full: float = 0.5
+    #: Each scan point counts on a translation axis by the component of its surface's normal on
+    #: it (a wall along the axis tells nothing about it); an axis whose points' mean weight is
+    #: below this counts proportionally less (the quality is multiplied by mean / this).
+    axis_info_full: float = 0.2
     #: m, rad. Measurement noise (1 sigma) of a perfect match (quality 1); it grows as 1/quality.
     match_sigma_xy: float = 0.04
     match_sigma_theta: float = math.radians(1.0)
