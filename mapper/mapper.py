@@ -46,7 +46,7 @@ from mapper.globalmap import GlobalMap
 from mapper.lines import ScanPoints, extract_surfaces, scan_points
 from mapper.localise import Localiser
 from mapper.params import MapperParams
-from mapper.se2 import Pose, between, compose, interpolate, inverse
+from mapper.se2 import Pose, between, compose, interpolate, inverse, transform_points
 from mapper.topology import Transition
 from mapper.types import ASR, Exit, Odometry, Scan
 from mapper.view import build_view
@@ -219,6 +219,8 @@ class Mapper:
         tuc = time.perf_counter()
         builder = self._builders[self.current]
         changed = builder.add_view(view, pose)
+        if changed:
+            self._keep_duplicate_on_its_match(builder, pose)
         self.localiser.add_reference(pts.xy, pose)
         refs = self._refs.setdefault(self.current, [])
         refs.append((pts.xy, pose))
@@ -235,6 +237,24 @@ class Mapper:
             events += self.globalmap.updated(a.id, t)
             timing["cycles"] = time.perf_counter() - tic
         return events
+
+    def _keep_duplicate_on_its_match(self, b: AsrBuilder, pose: Pose) -> None:
+        """A duplicate ASR (method.md §5.5) is the same place as its match: it does not grow beyond
+        the match's polygon (plus ``duplicate_margin``, in the global frame both are placed in).
+        Views through the match's doorways would otherwise swallow the next room or corridor into
+        the duplicate, which then no longer is the place it was matched to; the robot leaves the
+        clipped duplicate as it leaves any ASR (through an exit, or where it is outside it)."""
+        a = b.asr
+        match = self.asrs.get(a.duplicate_of) if a.duplicate_of is not None else None
+        if match is None or len(match.boundary) < 3:
+            return
+        rel = between(a.origin, match.origin)  # the match's frame seen from the duplicate's
+        area = shapely.make_valid(shapely.Polygon(transform_points(rel, match.boundary)))
+        area = area.buffer(self.params.duplicate_margin)
+        if b.polygon.difference(area).area < self.params.min_area_gain:
+            return
+        b.polygon = b._single_ring(shapely.intersection(b.polygon, area), shapely.Point(pose[:2]))
+        b._relabel()
 
     # --- crossing exits (§4): small methods, meant to be extended --------------------------------
     def _crossed_exit(self, prev: Pose, pose: Pose) -> tuple[Exit, tuple[float, float]] | None:
