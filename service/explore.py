@@ -4,20 +4,27 @@
 current ASR it goes to each ``unknown`` region of the boundary in turn (nearest first) until the
 enclosure is complete; then it takes the current ASR's *largest unexplored exit* (depth first);
 when every exit of the current ASR is explored it *backtracks* along the topological map to the
-nearest ASR (fewest metres between centres in the global frame) with an unexplored exit; when none
-is left it is *done*. An exit is explored when it leads somewhere (``to`` is set, or a link starts
-from it), when crossing it failed, or, in a duplicate ASR (method.md §5.5), when the matched ASR
-has an explored exit at the same place in the global frame: the duplicate's space is known.
+nearest ASR (fewest metres between centres in the global frame) with an unexplored exit; when the
+topological map offers no way there (the way out failed), it heads across the current ASR for the
+nearest unexplored exit of any ASR in the global frame (``goto``; one that cannot be reached is
+never retried); when none is left it is *done*. An exit is explored when it leads somewhere
+(``to`` is set, or a link starts from it), when crossing it failed, when the space beyond it is
+already inside other ASRs (``known_depths``: in an open-plan room every gap between tables is an
+exit into the same room), or, in a duplicate ASR (method.md §5.5), when the matched ASR has an
+explored exit at the same place in the global frame: the duplicate's space is known.
 An unknown region is a run of consecutive ``unknown`` boundary edges at least ``min_unknown`` long;
 it is looked at once, from the nearest point of the ASR shrunk by ``clearance``, then remembered
 (in the ASR's own frame, which never moves) so that regions that stay unknown (a max-range cut of a
 long hall, space behind furniture) do not hold exploration up.
 
 **Controller** (:class:`Explorer`): turn to the target, then drive, steering to the free heading
-nearest the target from the latest scan; a laser safety stop (no forward motion while a scan point
-in the robot's path is closer to the laser than ``stop_distance``); stuck detection (no progress
-towards the goal for ``stuck_time`` s) and recovery (back off or creep forward, turn to the most
-open side, give the goal up and plan again).
+nearest the target (or, when the straight line to it leaves the ASR, nearest a point ahead on a
+path planned on a grid inside the ASR polygon) from the latest scan; a laser safety stop (no
+forward motion while a scan point in the robot's path is closer to the laser than
+``stop_distance``); stuck detection (no progress towards the goal for ``stuck_time`` s) and
+recovery (back off or creep forward, turn to the most open side, give the goal up and plan
+again); an exit goal chosen in more than ``max_attempts``
+separate attempts is given up (the robot goes round a loop).
 
 Frames: targets and the robot pose are in the current ASR's frame (m, m, rad); scan points in the
 robot frame (x forward, y left); velocities out are ``v`` (m/s, forward) and ``w`` (rad/s,
@@ -222,6 +229,8 @@ class Memory:
     failed_exits: set[tuple[int, str]] = field(default_factory=set)
     failed_at: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
     retries: int = 0
+    #: Far exits (``goto``) that could not be reached: (asr, exit id, midpoint); never retried.
+    unreachable: list[tuple[int, str, tuple[float, float] | None]] = field(default_factory=list)
 
 
 def unknown_runs(asr: ASR) -> list[tuple[np.ndarray, float]]:
@@ -444,6 +453,9 @@ class Planner:
             return self._through(view, asr, exits[0], "exit", free, (asr.id,))
         path = self.backtrack_path(view)
         if path is None:
+            far = self._goto(view, asr, free)
+            if far is not None:
+                return far
             if self.memory.failed_exits and self.memory.retries < self.p.retries:
                 # Nothing left but what failed: failures are often passing (a pose estimate that
                 # recovered, a jam), so forget them and try again, a bounded number of times.
@@ -452,11 +464,41 @@ class Planner:
                          len(self.memory.failed_exits), self.memory.retries, self.p.retries)
                 self.memory.failed_exits.clear()
                 self.memory.failed_at.clear()
+                for a, e, m in self.memory.unreachable:  # a far exit not reached stays so
+                    self.failed(a, e, m)
                 return self.plan(view)
             return Goal("done", asr.id)
         hops, exit_id = path
         ex = exit_of(view, asr, exit_id)
         return self._through(view, asr, ex, "backtrack", free, hops)
+
+    def _goto(self, view: MapView, asr: ASR, free) -> Goal | None:
+        """No way through the topological map to an unexplored exit (the way out of this ASR
+        failed): head for the nearest unexplored exit of any ASR (global frame) across this ASR,
+        leaving it wherever the mapper sees it leave, and plan again from the next ASR."""
+        edges = _edges(view)
+        here = transform_points(asr.origin, np.array([view.pose[:2]]))[0]
+        best, best_d = None, math.inf
+        for other in view.asrs.values():
+            if other.id == asr.id:
+                continue
+            for ex in self.unexplored_exits(view, other, edges):
+                mid = transform_points(other.origin, np.array([ex.midpoint]))[0]
+                d = float(np.hypot(*(mid - here)))
+                if d < best_d:
+                    best, best_d = (other, ex), d
+        if best is None:
+            return None
+        other, ex = best
+        n = exit_normal(other, ex)
+        mid = np.asarray(ex.midpoint, dtype=float)
+        depth = _depth_beyond(other, mid, n)
+        ends = np.array([mid - self.p.stage_distance * n, mid + (depth + self.p.through_distance) * n])
+        stage, through = transform_points(compose(inverse(asr.origin), other.origin), ends).tolist()
+        here_local = (view.pose[0], view.pose[1])
+        return Goal("goto", asr.id, target=_inside_point(free, (stage[0], stage[1]), here_local),
+                    exit=ex.id, through=(through[0], through[1]), path=(asr.id, other.id),
+                    exit_mid=ex.midpoint)
 
     def _through(self, view, asr: ASR, ex: Exit, kind: str, free, path) -> Goal:
         n = exit_normal(asr, ex)
@@ -712,16 +754,17 @@ class Explorer:
         self._best = math.inf
         self._best_t = t
         self._reached_t = None
-        if goal.kind in ("unknown", "exit", "backtrack"):
+        if goal.kind in ("unknown", "exit", "backtrack", "goto"):
             self.counts["goals"] += 1
-            self.counts[{"unknown": "unknown", "exit": "exits", "backtrack": "backtracks"}[goal.kind]] += 1
+            kind = {"unknown": "unknown", "exit": "exits", "backtrack": "backtracks", "goto": "backtracks"}
+            self.counts[kind[goal.kind]] += 1
             log.debug("goal %s", goal)
 
     def _too_often(self, goal: Goal) -> bool:
         """Count the choice of an exit goal; True once it was chosen ``max_attempts`` times this round."""
-        if goal.kind not in ("exit", "backtrack") or goal.exit is None or goal.asr is None:
+        if goal.kind not in ("exit", "backtrack", "goto") or goal.exit is None or goal.asr is None:
             return False
-        key = (self.planner.memory.retries, goal.asr, goal.exit)
+        key = (self.planner.memory.retries, goal.path[-1] if goal.kind == "goto" else goal.asr, goal.exit)
         n, last = self._attempts.get(key, (0, -math.inf))
         if self._t - last >= self.p.attempt_spacing:
             n += 1  # choices in quick succession (an unknown region came and went) are one attempt
@@ -736,6 +779,9 @@ class Explorer:
         log.info("exploration: gave up %s %s in ASR %s (%s)", g.kind, g.exit or g.look_at, g.asr, why)
         if g.kind == "unknown" and g.look_at is not None and g.asr is not None:
             self.planner.looked_at(g.asr, g.look_at)
+        elif g.kind == "goto" and g.exit is not None:
+            self.planner.failed(g.path[-1], g.exit, g.exit_mid)  # the far exit, in its ASR's frame
+            self.planner.memory.unreachable.append((g.path[-1], g.exit, g.exit_mid))
         elif g.exit is not None and g.asr is not None:
             self.planner.failed(g.asr, g.exit, g.exit_mid)
         self.goal = None
@@ -751,6 +797,10 @@ class Explorer:
                        for q in pending)
         if g.kind == "settle":
             return True
+        if g.kind == "goto":
+            other = view.asrs.get(g.path[-1])
+            ex = next((e for e in other.exits if e.id == g.exit), None) if other is not None else None
+            return ex is not None and not self.planner.explored(view, other, ex)  # type: ignore[arg-type]
         if g.kind in ("exit", "backtrack"):
             ex = exit_of(view, asr, g.exit)  # type: ignore[arg-type]
             if ex is None:
@@ -822,7 +872,8 @@ class Explorer:
         if not self._still_valid(view):
             goal = self._settle(view) or self.planner.plan(view)
             if self._too_often(goal):
-                self.planner.failed(goal.asr, goal.exit, goal.exit_mid)  # type: ignore[arg-type]
+                where = goal.path[-1] if goal.kind == "goto" else goal.asr
+                self.planner.failed(where, goal.exit, goal.exit_mid)  # type: ignore[arg-type]
                 log.info("exploration: gave up %s %s in ASR %s (chosen %d times)", goal.kind, goal.exit,
                          goal.asr, self.p.max_attempts)
                 goal = self.planner.plan(view)
