@@ -949,8 +949,11 @@ class Explorer:
             if t - self._reached_t > self.p.crossing_grace:
                 self._give_up("crossed but the mapper stayed in the ASR")
             return Command(0.0, 0.0, f"waiting for the crossing of {g.exit}")
-        # Doorways leave ~0.24 m a side: steer with a tight margin so the jambs do not repel the robot.
-        return self._drive_to(g.through, pose, points, t, f"{what} {g.exit}", margin=0.02)  # type: ignore[arg-type]
+        # Doorways leave ~0.24 m a side: steer with a tight margin so the jambs do not repel the robot
+        # (only near the exit: a far one, ``goto``, is driven to with the usual margin).
+        near = dist < self.p.stage_distance + self.p.through_distance + 0.5
+        return self._drive_to(g.through, pose, points, t, f"{what} {g.exit}",  # type: ignore[arg-type]
+                              margin=0.02 if near else None)
 
     def _rotate(self, bearing: float, points: np.ndarray, t: float, status: str,
                 track: bool = True) -> Command:
