@@ -84,6 +84,7 @@ class Mapper:
         self.localiser = Localiser(self.params)
         self.timing: dict[str, float] = {}
         self._builders: dict[int, AsrBuilder] = {}
+        self._frozen: dict[int, shapely.Geometry] = {}  # matched ASRs: their polygon when first matched
         self._odom_t: list[float] = []
         self._odom_pose: list[Pose] = []
         self._last_odom: Pose | None = None
@@ -218,9 +219,10 @@ class Mapper:
         view = build_view(surf, p, covers)
         tuc = time.perf_counter()
         builder = self._builders[self.current]
+        before = builder.polygon
         changed = builder.add_view(view, pose)
         if changed:
-            self._keep_duplicate_on_its_match(builder, pose)
+            self._keep_closed_places(builder, before, pose)
         self.localiser.add_reference(pts.xy, pose)
         refs = self._refs.setdefault(self.current, [])
         refs.append((pts.xy, pose))
@@ -238,18 +240,23 @@ class Mapper:
             timing["cycles"] = time.perf_counter() - tic
         return events
 
-    def _keep_duplicate_on_its_match(self, b: AsrBuilder, pose: Pose) -> None:
-        """A duplicate ASR (method.md §5.5) is the same place as its match: it does not grow beyond
-        the match's polygon (plus ``duplicate_margin``, in the global frame both are placed in).
-        Views through the match's doorways would otherwise swallow the next room or corridor into
-        the duplicate, which then no longer is the place it was matched to; the robot leaves the
-        clipped duplicate as it leaves any ASR (through an exit, or where it is outside it)."""
+    def _keep_closed_places(self, b: AsrBuilder, before: shapely.Polygon, pose: Pose) -> None:
+        """The two ASRs of a closed cycle stay the place they were matched as (method.md §5.5): a
+        duplicate does not grow beyond its match's polygon, nor a match beyond its polygon when it
+        was first matched (each plus ``duplicate_margin``, in the global frame both are placed in).
+        Views through their doorways would otherwise swallow the next room or corridor into one of
+        them, which then no longer is the place the closure said; the robot leaves the clipped ASR
+        as it leaves any ASR (through an exit, or where it is outside it), into a new one."""
         a = b.asr
         match = self.asrs.get(a.duplicate_of) if a.duplicate_of is not None else None
-        if match is None or len(match.boundary) < 3:
+        if match is not None and len(match.boundary) >= 3:
+            rel = between(a.origin, match.origin)  # the match's frame seen from the duplicate's
+            area = shapely.make_valid(shapely.Polygon(transform_points(rel, match.boundary)))
+        elif a.id in self._frozen or any(o.duplicate_of == a.id for o in self.asrs.values()):
+            # Not current when it was matched: unchanged since, until this first view back in it.
+            area = self._frozen.setdefault(a.id, before)
+        else:
             return
-        rel = between(a.origin, match.origin)  # the match's frame seen from the duplicate's
-        area = shapely.make_valid(shapely.Polygon(transform_points(rel, match.boundary)))
         area = area.buffer(self.params.duplicate_margin)
         if b.polygon.difference(area).area < self.params.min_area_gain:
             return

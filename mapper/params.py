@@ -88,7 +88,8 @@ class MapperParams:
     #: is well under 0.01 m², and leaving it would leave an ``unknown`` notch in a closed room.
     min_area_gain: float = 1e-4
     #: m. A duplicate ASR (closed onto an earlier one) grows at most this far beyond its match's
-    #: polygon (global frame): the alignment error of a verified closure, and a little more.
+    #: polygon (global frame), and the match beyond its own polygon when first matched: the
+    #: alignment error of a verified closure, and a little more.
     duplicate_margin: float = 0.5
     #: Upper bound on the viewpoints kept per ASR (for the record and the localisation reference);
     #: the polygon itself is grown incrementally, so its cost does not depend on this.
