@@ -738,6 +738,7 @@ class Explorer:
         self._unjams: list[float] = []
         self._asr: ASR | None = None
         self._attempts: dict[tuple, tuple[int, float]] = {}
+        self._turn_sign = 0.0
         self._t = 0.0
         self._path: np.ndarray | None = None
         self._path_key: tuple | None = None
@@ -969,9 +970,14 @@ class Explorer:
             return Command(-creep, 0.0, f"{status} (backing off to turn)")
         if len(near) and (near[:, 0] < 0.0).all() and self._front_free(points):
             return Command(creep, 0.0, f"{status} (moving off to turn)")
+        if abs(bearing) > 0.8 * math.pi and self._turn_sign:
+            # Nearly behind: keep turning the way it was turning, or noise flips the side each step
+            # and the robot stands still.
+            bearing = math.copysign(abs(bearing), self._turn_sign)
         w = float(np.clip(self.p.k_heading * bearing, -self.p.w_max, self.p.w_max))
         if abs(w) < 0.15:
             w = math.copysign(0.15, bearing)  # below this P2OS barely turns (1 deg/s resolution)
+        self._turn_sign = math.copysign(1.0, w)
         return Command(0.0, w, status)
 
     def _drive_to(self, target: tuple[float, float], pose: Pose, points: np.ndarray, t: float,
