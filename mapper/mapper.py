@@ -260,7 +260,11 @@ class Mapper:
         area = area.buffer(self.params.duplicate_margin)
         if b.polygon.difference(area).area < self.params.min_area_gain:
             return
-        b.polygon = b._single_ring(shapely.intersection(b.polygon, area), shapely.Point(pose[:2]))
+        # Only the growth is clipped: what the ASR held before stays (a clip through its middle
+        # would otherwise keep just the part round the frame's origin).
+        kept = shapely.union(before, shapely.intersection(b.polygon, area)) if not before.is_empty else (
+            shapely.intersection(b.polygon, area))
+        b.polygon = b._single_ring(kept, shapely.Point(pose[:2]))
         b._relabel()
 
     # --- crossing exits (§4): small methods, meant to be extended --------------------------------
