@@ -495,10 +495,9 @@ class Planner:
         depth = _depth_beyond(other, mid, n)
         ends = np.array([mid - self.p.stage_distance * n, mid + (depth + self.p.through_distance) * n])
         stage, through = transform_points(compose(inverse(asr.origin), other.origin), ends).tolist()
-        here_local = (view.pose[0], view.pose[1])
-        return Goal("goto", asr.id, target=_inside_point(free, (stage[0], stage[1]), here_local),
-                    exit=ex.id, through=(through[0], through[1]), path=(asr.id, other.id),
-                    exit_mid=ex.midpoint)
+        # The staging point as it is, in the other ASR: the way there is planned through the map.
+        return Goal("goto", asr.id, target=(stage[0], stage[1]), exit=ex.id,
+                    through=(through[0], through[1]), path=(asr.id, other.id), exit_mid=ex.midpoint)
 
     def _through(self, view, asr: ASR, ex: Exit, kind: str, free, path) -> Goal:
         n = exit_normal(asr, ex)
@@ -739,6 +738,9 @@ class Explorer:
         self._asr: ASR | None = None
         self._attempts: dict[tuple, tuple[int, float]] = {}
         self._turn_sign = 0.0
+        self._view: MapView | None = None
+        self._area_key: tuple | None = None
+        self._area: shapely.Geometry = shapely.Polygon()
         self._t = 0.0
         self._path: np.ndarray | None = None
         self._path_key: tuple | None = None
@@ -868,6 +870,7 @@ class Explorer:
     def _step(self, view: MapView, points: np.ndarray, t: float) -> Command:
         self._t = t
         self._asr = view.asrs.get(view.current) if view.current is not None else None
+        self._view = view
         if view.current in view.asrs:
             self.planner.observe(view.asrs[view.current], view.pose)
         if not self._still_valid(view):
@@ -1024,7 +1027,9 @@ class Explorer:
         if key != self._path_key or t - self._path_t > p.replan_time or self._off_path(pose):
             self._path_key, self._path_t = key, t
             self._path = None
-            poly = shapely.make_valid(asr.polygon)
+            far = self.goal is not None and self.goal.kind == "goto" and self._view is not None
+            # A far exit (goto) is reached through the whole map: every ASR, in this one's frame.
+            poly = self._map_area(self._view, asr) if far else shapely.make_valid(asr.polygon)
             inner = poly.buffer(-p.half_width)
             line = shapely.LineString([pose[:2], target])
             ends_in = inner.covers(shapely.Point(pose[:2])) and inner.covers(shapely.Point(target))
@@ -1041,6 +1046,19 @@ class Explorer:
         aim = path[min(j, len(path) - 1)]
         left = float(d[k] + along[-1]) + math.hypot(target[0] - path[-1, 0], target[1] - path[-1, 1])
         return (float(aim[0]), float(aim[1])), left
+
+    def _map_area(self, view: MapView, asr: ASR) -> shapely.Geometry:
+        """Every ASR's polygon in ``asr``'s frame, each grown by a little so that neighbours meet
+        at their common exits, as one area (cached while the ASRs stay the same)."""
+        key = (asr.id, tuple((a.id, id(a.boundary), tuple(a.origin)) for a in view.asrs.values()))
+        if self._area_key != key:
+            to_here = inverse(asr.origin)
+            parts = [shapely.make_valid(shapely.Polygon(transform_points(compose(to_here, a.origin),
+                                                                         np.asarray(a.boundary))))
+                     for a in view.asrs.values() if len(a.boundary) >= 3]
+            self._area = shapely.union_all([q.buffer(0.05) for q in parts]) if parts else shapely.Polygon()
+            self._area_key = key
+        return self._area
 
     def _off_path(self, pose: Pose) -> bool:
         path = self._path
