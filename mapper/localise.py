@@ -81,6 +81,33 @@ def _directions(xy: np.ndarray, max_gap: float) -> np.ndarray:
     return np.mod(np.arctan2(d[ok, 1], d[ok, 0]), np.pi)
 
 
+def _surface_angle(xy: np.ndarray, max_gap: float) -> np.ndarray:
+    """Direction (rad) of the surface through each point of a sweep, from its neighbours two beams
+    either side: close together, or farther apart (a wall seen at a grazing angle) but in line with
+    the point; NaN otherwise (an isolated point: a leg, a corner)."""
+    out = np.full(len(xy), np.nan)
+    if len(xy) < 5:
+        return out
+    d = xy[4:] - xy[:-4]
+    n = np.hypot(d[:, 0], d[:, 1])
+    r = xy[2:-2] - xy[:-4]
+    off = np.abs(d[:, 0] * r[:, 1] - d[:, 1] * r[:, 0]) / np.maximum(n, 1e-9)  # from the chord
+    ok = (n > 0.02) & ((n < max_gap) | ((n < 8.0 * max_gap) & (off < 0.05)))
+    out[2:-2] = np.where(ok, np.arctan2(d[:, 1], d[:, 0]), np.nan)
+    return out
+
+
+def _axis_weights(angle: np.ndarray, alpha: float) -> tuple[np.ndarray, np.ndarray]:
+    """How much each point tells about position along u (the direction ``alpha``) and along v: the
+    component of its surface's normal on that axis. A wall along u says nothing about u (its points
+    only crowd where the laser was, which drags a match back to the reference's viewpoint); a wall
+    across u says all. Isolated points (legs) tell about both."""
+    rel = angle - alpha
+    wu = np.where(np.isnan(rel), 1.0, np.abs(np.sin(rel)))
+    wv = np.where(np.isnan(rel), 1.0, np.abs(np.cos(rel)))
+    return wu, wv
+
+
 def _hist_circular(angles: np.ndarray, nbins: int) -> np.ndarray:
     b = np.floor(angles * (nbins / np.pi)).astype(int) % nbins
     h = np.bincount(b, minlength=nbins).astype(float)
@@ -123,7 +150,8 @@ class Localiser:
         """Start over in a new ASR frame at ``pose`` (its creating scan: the frame's origin)."""
         self.kf.x = np.array(pose, dtype=float)
         self.kf.P = np.diag([1e-6, 1e-6, 1e-8])
-        self._refs: list[tuple[np.ndarray, np.ndarray]] = []  # (points, directions), ASR frame
+        # (points, directions, surface angles), ASR frame
+        self._refs: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._ref_ready = False
 
     @property
@@ -163,18 +191,20 @@ class Localiser:
 
     def add_references(self, scans: list[tuple[np.ndarray, Pose]]) -> None:
         """:meth:`add_reference` for each (points, pose) in turn, the histograms built once."""
+        gap = self.p.direction_max_gap
         for xy, pose in scans:
             pts = transform_points(pose, xy)
             if self._refs and len(self._refs) > self.p.reference_scans:
                 del self._refs[1]  # keep the first (anchors the frame) and the latest ones
-            self._refs.append((pts, _directions(pts, self.p.direction_max_gap)))
+            self._refs.append((pts, _directions(pts, gap), _surface_angle(pts, gap)))
         if scans:
             self._build_reference()
 
     def _build_reference(self) -> None:
         p = self.p
-        dirs = np.concatenate([d for _, d in self._refs])
-        pts = np.concatenate([r for r, _ in self._refs])
+        dirs = np.concatenate([d for _, d, _ in self._refs])
+        pts = np.concatenate([r for r, _, _ in self._refs])
+        wts = np.concatenate([w for _, _, w in self._refs])
         if len(dirs) < 10 or len(pts) < 10:
             self._ref_ready = False
             return
@@ -186,8 +216,9 @@ class Localiser:
         self._uv0 = uv.min(axis=0) - p.max_translation
         nb = np.floor((uv.max(axis=0) + p.max_translation - self._uv0) / p.xy_bin).astype(int) + 1
         b = np.floor((uv - self._uv0) / p.xy_bin).astype(int)
-        hu = np.bincount(b[:, 0], minlength=nb[0]).astype(float)
-        hv = np.bincount(b[:, 1], minlength=nb[1]).astype(float)
+        wu, wv = _axis_weights(wts, self._alpha)
+        hu = np.bincount(b[:, 0], weights=wu, minlength=nb[0])
+        hv = np.bincount(b[:, 1], weights=wv, minlength=nb[1])
         tw = self._tw
         # u and v histograms side by side, each padded by the search window, then a zero window
         # where scan points beyond the reference fall (index sink - tw)
@@ -224,9 +255,10 @@ class Localiser:
         b = np.floor((xy @ m.T + org) * (1.0 / p.xy_bin)).astype(int)
         tw, out = self._tw, len(self._huv) - 1 - self._tw
         idx = np.where((b >= 0) & (b < self._nuv), b + self._offsets, out)  # (K, 2)
-        # C(d) = sum_b h_scan(b) h_ref(b + d): the scan's histogram times the reference's windows
-        # (integer counts, so the sums are exact in any order); the sink's window is all zeros
-        h = np.bincount(idx.ravel(), minlength=len(self._huv)).astype(float)
+        # C(d) = sum_b h_scan(b) h_ref(b + d): the scan's histogram (each point weighted on each axis
+        # by its surface normal's component) times the reference's windows; the sink's window is 0
+        w = np.column_stack(_axis_weights(_surface_angle(xy, p.direction_max_gap) + th_m, self._alpha))
+        h = np.bincount(idx.ravel(), weights=w.ravel(), minlength=len(self._huv))
         split = self._offsets[1]
         cu = h[tw:split] @ self._windows[: split - tw]
         cv = h[split : len(h) - tw] @ self._windows[split - tw :]
@@ -235,9 +267,14 @@ class Localiser:
         h *= h
         norm_u, norm_v = math.sqrt(h[: self._offsets[1]].sum()), math.sqrt(h[self._offsets[1] :].sum())
         qs = (
-            _norm_peak(float(cu.max()), norm_u, self._huv_norm[0]),
-            _norm_peak(float(cv.max()), norm_v, self._huv_norm[1]),
+            _norm_peak(float(cu.max()), norm_u, self._huv_norm[0]) * _prominence(cu, p.prominence_bins,
+                                                                                 p.prominence_full),
+            _norm_peak(float(cv.max()), norm_v, self._huv_norm[1]) * _prominence(cv, p.prominence_bins,
+                                                                                 p.prominence_full),
         )
+        # An axis few surfaces face (the along-corridor one) counts only as much as they are there.
+        info = np.clip(w.sum(axis=0) / (len(w) * p.axis_info_full), 0.0, 1.0)
+        qs = (qs[0] * float(info[0]), qs[1] * float(info[1]))
         ra = _rot(self._alpha)
         corr = ra @ shifts
         var_uv = [(p.match_sigma_xy / q) ** 2 if q >= p.min_quality else _NOT_MEASURED for q in qs]
@@ -260,6 +297,22 @@ def _norm_peak(peak: float, norm_a: float, norm_b: float) -> float:
     """Normalised correlation peak (cosine similarity of the best-aligned histograms), 0..1."""
     den = norm_a * norm_b
     return peak / den if den > 0 else 0.0
+
+
+def _prominence(c: np.ndarray, bins: int, full: float) -> float:
+    """How distinct the peak of a translation correlation ``c`` is, 0..1: 1 - (the largest value
+    ``bins`` or more bins away from the peak) / (the peak), scaled so that ``full`` counts as 1.
+
+    A histogram without structure along an axis (the walls of a corridor, seen along it) correlates
+    almost equally at every shift: its cosine similarity is high, but its peak sits wherever the
+    two point sets' extents overlap most, which drags the estimate back towards the reference."""
+    i = int(np.argmax(c))
+    peak = float(c[i])
+    if peak <= 0.0:
+        return 0.0
+    far = np.abs(np.arange(len(c)) - i) >= bins
+    rest = float(c[far].max()) if far.any() else 0.0
+    return float(np.clip((1.0 - rest / peak) / full, 0.0, 1.0))
 
 
 def _mahalanobis2(y: np.ndarray, s: np.ndarray) -> float:

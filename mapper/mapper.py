@@ -67,7 +67,7 @@ from mapper.globalmap import GlobalMap
 from mapper.lines import ScanPoints, extract_surfaces, scan_points
 from mapper.localise import Localiser
 from mapper.params import MapperParams
-from mapper.se2 import Pose, between, compose, interpolate, inverse
+from mapper.se2 import Pose, between, compose, interpolate, inverse, transform_points
 from mapper.topology import Transition
 from mapper.types import ASR, Exit, Odometry, Scan
 from mapper.view import View, build_view
@@ -109,6 +109,7 @@ class Mapper:
         self.localiser = Localiser(self.params)
         self.timing: dict[str, float] = {}
         self._builders: dict[int, AsrBuilder] = {}
+        self._frozen: dict[int, shapely.Geometry] = {}  # matched ASRs: their polygon when first matched
         self._odom_t: list[float] = []
         self._odom_pose: list[Pose] = []
         self._last_odom: Pose | None = None
@@ -343,7 +344,11 @@ class Mapper:
         if view is None:
             view = self._view(pts)
         tic = time.perf_counter()
-        changed = self._builders[aid].add_view(view, pose, relabel=False)
+        builder = self._builders[aid]
+        before = builder.polygon
+        changed = builder.add_view(view, pose, relabel=False)
+        if changed:
+            self._keep_closed_places(builder, before, pose)
         self.timing["asr"] = time.perf_counter() - tic
         if changed:
             self._stale = (t, aid)
@@ -367,6 +372,33 @@ class Mapper:
             tic = time.perf_counter()
             self._outbox += self._gm.updated(a.id, t)
             timing["cycles"] = time.perf_counter() - tic
+
+    def _keep_closed_places(self, b: AsrBuilder, before: shapely.Polygon, pose: Pose) -> None:
+        """The two ASRs of a closed cycle stay the place they were matched as (method.md §5.5): a
+        duplicate does not grow beyond its match's polygon, nor a match beyond its polygon when it
+        was first matched (each plus ``duplicate_margin``, in the global frame both are placed in).
+        Views through their doorways would otherwise swallow the next room or corridor into one of
+        them, which then no longer is the place the closure said; the robot leaves the clipped ASR
+        as it leaves any ASR (through an exit, or where it is outside it), into a new one."""
+        a = b.asr
+        match = self._asrs.get(a.duplicate_of) if a.duplicate_of is not None else None
+        if match is not None and len(match.boundary) >= 3:
+            rel = between(a.origin, match.origin)  # the match's frame seen from the duplicate's
+            area = shapely.make_valid(shapely.Polygon(transform_points(rel, match.boundary)))
+        elif a.id in self._frozen or any(o.duplicate_of == a.id for o in self._asrs.values()):
+            # Not current when it was matched: unchanged since, until this first view back in it.
+            area = self._frozen.setdefault(a.id, before)
+        else:
+            return
+        area = area.buffer(self.params.duplicate_margin)
+        if b.polygon.difference(area).area < self.params.min_area_gain:
+            return
+        # Only the growth is clipped: what the ASR held before stays (a clip through its middle
+        # would otherwise keep just the part round the frame's origin).
+        kept = shapely.union(before, shapely.intersection(b.polygon, area)) if not before.is_empty else (
+            shapely.intersection(b.polygon, area))
+        b.polygon = b._single_ring(kept, shapely.Point(pose[:2]))
+        b.stale = True  # labels, exits and centre follow the clipped polygon when next needed
 
     # --- crossing exits (§4): small methods, meant to be extended --------------------------------
     def _crossed_exit(
@@ -414,6 +446,11 @@ class Mapper:
         here = shapely.Point(pose[:2])
         if b.polygon.is_empty or b.polygon.distance(here) <= self.params.leave_margin:
             return None
+        if b.polygon.area < self.params.cycles.min_area:
+            # A sliver of a first view (taken on a doorway, the view mostly cut off) is no place to
+            # leave: an exit opened on it can face anywhere, and its gate would stop the ASR from
+            # growing round the robot. The next views grow it.
+            return None
         ring = b.polygon.exterior
         hit = ring.intersection(shapely.LineString([prev[:2], pose[:2]]))
         if hit.is_empty:
@@ -447,7 +484,10 @@ class Mapper:
         the transition and the cycle check."""
         new = self.current
         e.to = new
-        via = self._entrance(new, between(pose, (at[0], at[1], 0.0))[:2])
+        local_at = between(pose, (at[0], at[1], 0.0))[:2]
+        via = self._entrance(new, local_at)
+        if via is None:
+            via = self._open_entrance(new, local_at)
         if via is not None:
             via.to = old
         via_id = via.id if via is not None else None
@@ -457,6 +497,26 @@ class Mapper:
         events += self._gm.add_created(self._asrs[new], old, e.id, via_id, pose, t)
         self.timing["cycles"] = time.perf_counter() - tic
         return events
+
+    def _open_entrance(self, asr: int, at: tuple[float, float]) -> Exit | None:
+        """The entrance of a new ASR whose first view shows none (the laser looks ahead: the doorway
+        just passed is behind the robot), opened where the robot came in (``at``, its frame), so the
+        ASR has a way back and its gate keeps later views from growing back through the doorway.
+
+        Only when the first view is a real area and the exit opened faces backwards (its outside,
+        right of a -> b, away from the robot's heading, +x): on a sliver of a first view the chord
+        can come out anywhere, and a gate ahead of the robot would stop the ASR from growing."""
+        b = self._builders[asr]
+        if b.polygon.area < self.params.cycles.min_area:
+            return None
+        saved = (b.exit_segments, list(b.asr.exits), b.asr.boundary, list(b.asr.edges), b._next_exit)
+        e = b.open_exit(at)
+        d = np.subtract(e.b, e.a)
+        outward_x = d[1] / max(float(np.hypot(*d)), 1e-12)  # x of the right normal (d_y, -d_x)
+        if outward_x < -0.5 and e.midpoint[0] < 0.3:
+            return e
+        b.exit_segments, b.asr.exits, b.asr.boundary, b.asr.edges, b._next_exit = saved
+        return None
 
     def _reenter(self, t: float, tr: Transition, pose: Pose, pts: ScanPoints) -> list[Event]:
         """Re-enter the known ASR ``tr.dst``: hand the pose over (``tr.rel`` is its frame seen from

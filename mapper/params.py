@@ -87,6 +87,10 @@ class MapperParams:
     #: AsrUpdated). Tiny on purpose: the sliver a later view fills at the first view's rear corner
     #: is well under 0.01 m², and leaving it would leave an ``unknown`` notch in a closed room.
     min_area_gain: float = 1e-4
+    #: m. A duplicate ASR (closed onto an earlier one) grows at most this far beyond its match's
+    #: polygon (global frame), and the match beyond its own polygon when first matched: the
+    #: alignment error of a verified closure, and a little more.
+    duplicate_margin: float = 0.5
     #: Upper bound on the viewpoints kept per ASR (for the record and the localisation reference);
     #: the polygon itself is grown incrementally, so its cost does not depend on this.
     max_viewpoints: int = 200
@@ -108,6 +112,16 @@ class MapperParams:
     max_translation: float = 0.40
     #: Correlation quality (0..1, normalised cross-correlation peak) below which a match is rejected.
     min_quality: float = 0.35
+    #: bins, fraction. A translation axis counts only as much as its correlation peak stands out:
+    #: 1 - (the best shift at least ``prominence_bins`` bins from the peak) / (the peak), with
+    #: ``prominence_full`` and above counting fully (the quality is multiplied by it). Along a
+    #: corridor the correlation is nearly flat and the axis is then left to odometry.
+    prominence_bins: int = 3
+    prominence_full: float = 0.5
+    #: Each scan point counts on a translation axis by the component of its surface's normal on
+    #: it (a wall along the axis tells nothing about it); an axis whose points' mean weight is
+    #: below this counts proportionally less (the quality is multiplied by mean / this).
+    axis_info_full: float = 0.2
     #: m, rad. Measurement noise (1 sigma) of a perfect match (quality 1); it grows as 1/quality.
     match_sigma_xy: float = 0.04
     match_sigma_theta: float = math.radians(1.0)

@@ -4,20 +4,27 @@
 current ASR it goes to each ``unknown`` region of the boundary in turn (nearest first) until the
 enclosure is complete; then it takes the current ASR's *largest unexplored exit* (depth first);
 when every exit of the current ASR is explored it *backtracks* along the topological map to the
-nearest ASR (fewest metres between centres in the global frame) with an unexplored exit; when none
-is left it is *done*. An exit is explored when it leads somewhere (``to`` is set, or a link starts
-from it), when crossing it failed, or, in a duplicate ASR (method.md §5.5), when the matched ASR
-has an explored exit at the same place in the global frame: the duplicate's space is known.
+nearest ASR (fewest metres between centres in the global frame) with an unexplored exit; when the
+topological map offers no way there (the way out failed), it heads across the current ASR for the
+nearest unexplored exit of any ASR in the global frame (``goto``; one that cannot be reached is
+never retried); when none is left it is *done*. An exit is explored when it leads somewhere
+(``to`` is set, or a link starts from it), when crossing it failed, when the space beyond it is
+already inside other ASRs (``known_depths``: in an open-plan room every gap between tables is an
+exit into the same room), or, in a duplicate ASR (method.md §5.5), when the matched ASR has an
+explored exit at the same place in the global frame: the duplicate's space is known.
 An unknown region is a run of consecutive ``unknown`` boundary edges at least ``min_unknown`` long;
 it is looked at once, from the nearest point of the ASR shrunk by ``clearance``, then remembered
 (in the ASR's own frame, which never moves) so that regions that stay unknown (a max-range cut of a
 long hall, space behind furniture) do not hold exploration up.
 
 **Controller** (:class:`Explorer`): turn to the target, then drive, steering to the free heading
-nearest the target from the latest scan; a laser safety stop (no forward motion while a scan point
-in the robot's path is closer to the laser than ``stop_distance``); stuck detection (no progress
-towards the goal for ``stuck_time`` s) and recovery (back off or creep forward, turn to the most
-open side, give the goal up and plan again).
+nearest the target (or, when the straight line to it leaves the ASR, nearest a point ahead on a
+path planned on a grid inside the ASR polygon) from the latest scan; a laser safety stop (no
+forward motion while a scan point in the robot's path is closer to the laser than
+``stop_distance``); stuck detection (no progress towards the goal for ``stuck_time`` s) and
+recovery (back off or creep forward, turn to the most open side, give the goal up and plan
+again); an exit goal chosen in more than ``max_attempts``
+separate attempts is given up (the robot goes round a loop).
 
 Frames: targets and the robot pose are in the current ASR's frame (m, m, rad); scan points in the
 robot frame (x forward, y left); velocities out are ``v`` (m/s, forward) and ``w`` (rad/s,
@@ -84,6 +91,14 @@ class ExploreParams:
     turn_in_place: float = 0.6
     #: m. Steering looks this far ahead for a free heading.
     lookahead: float = 1.0
+    #: m. Paths inside the ASR: a grid of this cell size over the ASR polygon shrunk by
+    #: ``path_clearance`` (the robot's half width and a margin), searched when the straight line
+    #: to a target leaves it; the robot steers to the path point ``path_lookahead`` ahead, and
+    #: plans again every ``replan_time`` s (the polygon grows) or when it is off the path.
+    path_cell: float = 0.1
+    path_clearance: float = 0.3
+    path_lookahead: float = 0.8
+    replan_time: float = 3.0
     #: m. Lateral margin added to the robot's half width when judging a heading free (steering).
     steer_margin: float = 0.12
     #: m. Lateral margin of the safety stop's corridor, and of steering through a doorway (0.9 m
@@ -111,8 +126,19 @@ class ExploreParams:
     recovery_turn: float = 1.2
     #: How many times exits that failed are all forgotten and tried again before exploration ends.
     retries: int = 2
+    #: An exit (or backtrack through it) chosen this many times in one round fails: the robot
+    #: goes round in a loop (its far side sends it back, the mapper flips between two ASRs).
+    max_attempts: int = 4
+    #: s. Choices of one exit goal closer together than this count as one attempt.
+    attempt_spacing: float = 10.0
     #: m. Exits of a duplicate and of its matched ASR within this distance (global frame) are one exit.
     duplicate_radius: float = 1.0
+    #: m. An exit needs no visit when the space beyond it is already mapped: the points this far
+    #: beyond it (beyond the ASR polygon, on the exit's normal) all lie inside other ASRs (global
+    #: frame, shrunk by ``known_margin``). In an open-plan room every gap between tables is an exit
+    #: into the same room.
+    known_depths: tuple[float, ...] = (0.5, 1.0, 1.5)
+    known_margin: float = 0.2
     #: m, robot frame. Robot front (from the turning centre), half width, laser position.
     front: float = 0.210
     half_width: float = 0.2125
@@ -203,6 +229,8 @@ class Memory:
     failed_exits: set[tuple[int, str]] = field(default_factory=set)
     failed_at: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
     retries: int = 0
+    #: Far exits (``goto``) that could not be reached: (asr, exit id, midpoint); never retried.
+    unreachable: list[tuple[int, str, tuple[float, float] | None]] = field(default_factory=list)
 
 
 def unknown_runs(asr: ASR) -> list[tuple[np.ndarray, float]]:
@@ -300,6 +328,8 @@ class Planner:
         self.memory = memory or Memory()
         self._pending_key: tuple | None = None
         self._pending: list[tuple[float, float]] = []
+        self._known_key: tuple | None = None
+        self._known: list[tuple[int, shapely.Geometry]] = []
 
     # -- bookkeeping ---------------------------------------------------------------------------
     def looked_at(self, asr: int, point: tuple[float, float]) -> None:
@@ -354,6 +384,8 @@ class Planner:
         edges = _edges(view) if edges is None else edges
         if (asr.id, ex.id) in edges:
             return True
+        if self._known_beyond(view, asr, ex):
+            return True
         orig = view.asrs.get(asr.duplicate_of) if asr.duplicate_of is not None else None
         if orig is not None:
             mid = transform_points(asr.origin, np.array([ex.midpoint]))[0]
@@ -364,6 +396,40 @@ class Planner:
                 if np.hypot(*(omid - mid)) < self.p.duplicate_radius:
                     return True
         return False
+
+    def _known_beyond(self, view: MapView, asr: ASR, ex: Exit) -> bool:
+        """Whether the space beyond ``ex`` is inside ASRs other than ``asr`` (see ``known_depths``)."""
+        if not self.p.known_depths:
+            return False
+        n = exit_normal(asr, ex)
+        mid = np.asarray(ex.midpoint, dtype=float)
+        depth = _depth_beyond(asr, mid, n)
+        pts = transform_points(asr.origin, np.array([mid + (depth + d) * n for d in self.p.known_depths]))
+        for other in self._known_areas(view):
+            if other[0] == asr.id:
+                continue
+            inside = shapely.contains_xy(other[1], pts[:, 0], pts[:, 1])
+            pts = pts[~inside]
+            if not len(pts):
+                return True
+        return False
+
+    def _known_areas(self, view: MapView) -> list[tuple[int, shapely.Geometry]]:
+        """Every ASR's polygon in the global frame, shrunk by ``known_margin`` (cached while the ASRs'
+        boundaries and origins stay the same)."""
+        key = tuple((a.id, id(a.boundary), len(a.boundary), tuple(a.origin)) for a in view.asrs.values())
+        if self._known_key != key:
+            areas = []
+            for a in view.asrs.values():
+                if len(a.boundary) < 3:
+                    continue
+                poly = shapely.make_valid(shapely.Polygon(transform_points(a.origin, np.asarray(a.boundary))))
+                poly = poly.buffer(-self.p.known_margin)
+                if not poly.is_empty:
+                    shapely.prepare(poly)
+                    areas.append((a.id, poly))
+            self._known_key, self._known = key, areas
+        return self._known
 
     def unexplored_exits(self, view: MapView, asr: ASR, edges: dict | None = None) -> list[Exit]:
         """Unexplored exits of ``asr``, widest first."""
@@ -387,6 +453,9 @@ class Planner:
             return self._through(view, asr, exits[0], "exit", free, (asr.id,))
         path = self.backtrack_path(view)
         if path is None:
+            far = self._goto(view, asr, free)
+            if far is not None:
+                return far
             if self.memory.failed_exits and self.memory.retries < self.p.retries:
                 # Nothing left but what failed: failures are often passing (a pose estimate that
                 # recovered, a jam), so forget them and try again, a bounded number of times.
@@ -395,17 +464,47 @@ class Planner:
                          len(self.memory.failed_exits), self.memory.retries, self.p.retries)
                 self.memory.failed_exits.clear()
                 self.memory.failed_at.clear()
+                for a, e, m in self.memory.unreachable:  # a far exit not reached stays so
+                    self.failed(a, e, m)
                 return self.plan(view)
             return Goal("done", asr.id)
         hops, exit_id = path
         ex = exit_of(view, asr, exit_id)
         return self._through(view, asr, ex, "backtrack", free, hops)
 
+    def _goto(self, view: MapView, asr: ASR, free) -> Goal | None:
+        """No way through the topological map to an unexplored exit (the way out of this ASR
+        failed): head for the nearest unexplored exit of any ASR (global frame) across this ASR,
+        leaving it wherever the mapper sees it leave, and plan again from the next ASR."""
+        edges = _edges(view)
+        here = transform_points(asr.origin, np.array([view.pose[:2]]))[0]
+        best, best_d = None, math.inf
+        for other in view.asrs.values():
+            if other.id == asr.id:
+                continue
+            for ex in self.unexplored_exits(view, other, edges):
+                mid = transform_points(other.origin, np.array([ex.midpoint]))[0]
+                d = float(np.hypot(*(mid - here)))
+                if d < best_d:
+                    best, best_d = (other, ex), d
+        if best is None:
+            return None
+        other, ex = best
+        n = exit_normal(other, ex)
+        mid = np.asarray(ex.midpoint, dtype=float)
+        depth = _depth_beyond(other, mid, n)
+        ends = np.array([mid - self.p.stage_distance * n, mid + (depth + self.p.through_distance) * n])
+        stage, through = transform_points(compose(inverse(asr.origin), other.origin), ends).tolist()
+        # The staging point as it is, in the other ASR: the way there is planned through the map.
+        return Goal("goto", asr.id, target=(stage[0], stage[1]), exit=ex.id,
+                    through=(through[0], through[1]), path=(asr.id, other.id), exit_mid=ex.midpoint)
+
     def _through(self, view, asr: ASR, ex: Exit, kind: str, free, path) -> Goal:
         n = exit_normal(asr, ex)
         mid = np.asarray(ex.midpoint)
         stage = tuple(float(v) for v in mid - self.p.stage_distance * n)
-        through = tuple(float(v) for v in mid + self.p.through_distance * n)
+        depth = _depth_beyond(asr, mid, n)
+        through = tuple(float(v) for v in mid + (depth + self.p.through_distance) * n)
         here = (view.pose[0], view.pose[1])
         return Goal(kind, asr.id, target=_inside_point(free, stage, here), exit=ex.id,  # type: ignore[arg-type]
                     through=through, path=tuple(path), exit_mid=ex.midpoint)  # type: ignore[arg-type]
@@ -444,6 +543,20 @@ class Planner:
                     prev[b] = (a, e)
                     heapq.heappush(todo, (nd, b))
         return None
+
+
+def _depth_beyond(asr: ASR, mid: np.ndarray, n: np.ndarray, reach: float = 2.0) -> float:
+    """How far (m, at most ``reach``) from ``mid`` along ``n`` the ray leaves the ASR polygon: 0 for
+    an exit on the boundary. An exit is the chord of a run of exit edges, and a run that bends
+    (pieced together from several views) leaves polygon beyond the chord: the mapper sees the
+    robot leave only once it is outside the polygon."""
+    poly = shapely.make_valid(asr.polygon)
+    probe = mid + np.outer(np.arange(0.05, reach + 1e-9, 0.05), n)
+    inside = shapely.contains_xy(poly, probe[:, 0], probe[:, 1])
+    if not inside.any():
+        return 0.0
+    last = int(np.flatnonzero(inside)[-1])
+    return float(min(reach, 0.05 * (last + 1)))
 
 
 def _centre_distance(a: ASR, b: ASR) -> float:
@@ -501,6 +614,57 @@ def exit_of(view: MapView, asr: ASR, exit_id: str) -> Exit | None:
     ends = transform_points(inverse(asr.origin), transform_points(src.origin, np.array([ex.a, ex.b])))
     a, b = ends.tolist()
     return Exit(exit_id, (a[0], a[1]), (b[0], b[1]), src.id)
+
+
+def plan_path(polygon: shapely.Geometry, start: tuple[float, float], goal: tuple[float, float],
+              cell: float, clearance: float) -> np.ndarray | None:
+    """Shortest path (K, 2) from ``start`` to ``goal`` through ``polygon`` shrunk by ``clearance``
+    (m, one frame), on a grid of ``cell`` m with 8 neighbours; its first and last points are the
+    free cells nearest ``start`` and ``goal`` (each within 4 cells of free space, else None)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    free = shapely.make_valid(polygon).buffer(-clearance)
+    if free.is_empty:
+        return None
+    x0, y0, x1, y1 = free.bounds
+    nx, ny = int((x1 - x0) / cell) + 2, int((y1 - y0) / cell) + 2
+    if nx * ny > 400_000:
+        return None
+    xs, ys = x0 + cell * np.arange(nx), y0 + cell * np.arange(ny)
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    ok = shapely.contains_xy(free, gx, gy)
+    if not ok.any():
+        return None
+    idx = -np.ones((nx, ny), dtype=int)
+    idx[ok] = np.arange(int(ok.sum()))
+    pts = np.column_stack([gx[ok], gy[ok]])
+
+    def nearest(q: tuple[float, float]) -> int | None:
+        d = np.hypot(pts[:, 0] - q[0], pts[:, 1] - q[1])
+        k = int(np.argmin(d))
+        return k if d[k] <= 4.0 * cell else None
+
+    a, b = nearest(start), nearest(goal)
+    if a is None or b is None:
+        return None
+    rows, cols, w = [], [], []
+    for di, dj in ((1, 0), (0, 1), (1, 1), (1, -1)):
+        src = idx[max(0, -di): nx - max(0, di), max(0, -dj): ny - max(0, dj)]
+        dst = idx[max(0, di): nx - max(0, -di) or None, max(0, dj): ny - max(0, -dj) or None]
+        m = (src >= 0) & (dst >= 0)
+        rows.append(src[m])
+        cols.append(dst[m])
+        w.append(np.full(int(m.sum()), cell * math.hypot(di, dj)))
+    n = len(pts)
+    graph = coo_matrix((np.concatenate(w), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+    dist, pred = dijkstra(graph.tocsr(), directed=False, indices=a, return_predecessors=True)
+    if not np.isfinite(dist[b]):
+        return None
+    path = [b]
+    while path[-1] != a:
+        path.append(int(pred[path[-1]]))
+    return pts[path[::-1]]
 
 
 # --- the controller ---------------------------------------------------------------------------------
@@ -571,6 +735,16 @@ class Explorer:
         self._near = np.zeros((0, 2))
         self._last: Command | None = None
         self._unjams: list[float] = []
+        self._asr: ASR | None = None
+        self._attempts: dict[tuple, tuple[int, float]] = {}
+        self._turn_sign = 0.0
+        self._view: MapView | None = None
+        self._area_key: tuple | None = None
+        self._area: shapely.Geometry = shapely.Polygon()
+        self._t = 0.0
+        self._path: np.ndarray | None = None
+        self._path_key: tuple | None = None
+        self._path_t = -math.inf
         self.finished = False
         self.counts = {"goals": 0, "unknown": 0, "exits": 0, "backtracks": 0, "stuck": 0, "failed": 0,
                        "unjam": 0}
@@ -583,10 +757,22 @@ class Explorer:
         self._best = math.inf
         self._best_t = t
         self._reached_t = None
-        if goal.kind in ("unknown", "exit", "backtrack"):
+        if goal.kind in ("unknown", "exit", "backtrack", "goto"):
             self.counts["goals"] += 1
-            self.counts[{"unknown": "unknown", "exit": "exits", "backtrack": "backtracks"}[goal.kind]] += 1
+            kind = {"unknown": "unknown", "exit": "exits", "backtrack": "backtracks", "goto": "backtracks"}
+            self.counts[kind[goal.kind]] += 1
             log.debug("goal %s", goal)
+
+    def _too_often(self, goal: Goal) -> bool:
+        """Count the choice of an exit goal; True once it was chosen ``max_attempts`` times this round."""
+        if goal.kind not in ("exit", "backtrack", "goto") or goal.exit is None or goal.asr is None:
+            return False
+        key = (self.planner.memory.retries, goal.path[-1] if goal.kind == "goto" else goal.asr, goal.exit)
+        n, last = self._attempts.get(key, (0, -math.inf))
+        if self._t - last >= self.p.attempt_spacing:
+            n += 1  # choices in quick succession (an unknown region came and went) are one attempt
+        self._attempts[key] = (n, self._t)
+        return n > self.p.max_attempts
 
     def _give_up(self, why: str) -> None:
         g = self.goal
@@ -596,6 +782,9 @@ class Explorer:
         log.info("exploration: gave up %s %s in ASR %s (%s)", g.kind, g.exit or g.look_at, g.asr, why)
         if g.kind == "unknown" and g.look_at is not None and g.asr is not None:
             self.planner.looked_at(g.asr, g.look_at)
+        elif g.kind == "goto" and g.exit is not None:
+            self.planner.failed(g.path[-1], g.exit, g.exit_mid)  # the far exit, in its ASR's frame
+            self.planner.memory.unreachable.append((g.path[-1], g.exit, g.exit_mid))
         elif g.exit is not None and g.asr is not None:
             self.planner.failed(g.asr, g.exit, g.exit_mid)
         self.goal = None
@@ -611,6 +800,10 @@ class Explorer:
                        for q in pending)
         if g.kind == "settle":
             return True
+        if g.kind == "goto":
+            other = view.asrs.get(g.path[-1])
+            ex = next((e for e in other.exits if e.id == g.exit), None) if other is not None else None
+            return ex is not None and not self.planner.explored(view, other, ex)  # type: ignore[arg-type]
         if g.kind in ("exit", "backtrack"):
             ex = exit_of(view, asr, g.exit)  # type: ignore[arg-type]
             if ex is None:
@@ -675,10 +868,19 @@ class Explorer:
         return self._step(view, points, t)
 
     def _step(self, view: MapView, points: np.ndarray, t: float) -> Command:
+        self._t = t
+        self._asr = view.asrs.get(view.current) if view.current is not None else None
+        self._view = view
         if view.current in view.asrs:
             self.planner.observe(view.asrs[view.current], view.pose)
         if not self._still_valid(view):
             goal = self._settle(view) or self.planner.plan(view)
+            if self._too_often(goal):
+                where = goal.path[-1] if goal.kind == "goto" else goal.asr
+                self.planner.failed(where, goal.exit, goal.exit_mid)  # type: ignore[arg-type]
+                log.info("exploration: gave up %s %s in ASR %s (chosen %d times)", goal.kind, goal.exit,
+                         goal.asr, self.p.max_attempts)
+                goal = self.planner.plan(view)
             self._set_goal(goal, t)
         g = self.goal
         assert g is not None
@@ -751,8 +953,11 @@ class Explorer:
             if t - self._reached_t > self.p.crossing_grace:
                 self._give_up("crossed but the mapper stayed in the ASR")
             return Command(0.0, 0.0, f"waiting for the crossing of {g.exit}")
-        # Doorways leave ~0.24 m a side: steer with a tight margin so the jambs do not repel the robot.
-        return self._drive_to(g.through, pose, points, t, f"{what} {g.exit}", margin=0.02)  # type: ignore[arg-type]
+        # Doorways leave ~0.24 m a side: steer with a tight margin so the jambs do not repel the robot
+        # (only near the exit: a far one, ``goto``, is driven to with the usual margin).
+        near = dist < self.p.stage_distance + self.p.through_distance + 0.5
+        return self._drive_to(g.through, pose, points, t, f"{what} {g.exit}",  # type: ignore[arg-type]
+                              margin=0.02 if near else None)
 
     def _rotate(self, bearing: float, points: np.ndarray, t: float, status: str,
                 track: bool = True) -> Command:
@@ -768,20 +973,27 @@ class Explorer:
             return Command(-creep, 0.0, f"{status} (backing off to turn)")
         if len(near) and (near[:, 0] < 0.0).all() and self._front_free(points):
             return Command(creep, 0.0, f"{status} (moving off to turn)")
+        if abs(bearing) > 0.8 * math.pi and self._turn_sign:
+            # Nearly behind: keep turning the way it was turning, or noise flips the side each step
+            # and the robot stands still.
+            bearing = math.copysign(abs(bearing), self._turn_sign)
         w = float(np.clip(self.p.k_heading * bearing, -self.p.w_max, self.p.w_max))
         if abs(w) < 0.15:
             w = math.copysign(0.15, bearing)  # below this P2OS barely turns (1 deg/s resolution)
+        self._turn_sign = math.copysign(1.0, w)
         return Command(0.0, w, status)
 
     def _drive_to(self, target: tuple[float, float], pose: Pose, points: np.ndarray, t: float,
                   status: str, margin: float | None = None) -> Command:
-        dx, dy = target[0] - pose[0], target[1] - pose[1]
-        dist = math.hypot(dx, dy)
-        self._progress(dist, t)
+        dist = math.hypot(target[0] - pose[0], target[1] - pose[1])
+        aim, remaining = self._aim(target, pose, t)
+        self._progress(remaining, t)
         if self._stuck(t):
             return self._start_recovery(points, t)
+        dx, dy = aim[0] - pose[0], aim[1] - pose[1]
         want = wrap(math.atan2(dy, dx) - pose[2])
-        heading = self._steer(want, dist, points, self.p.steer_margin if margin is None else margin)
+        margin = self.p.steer_margin if margin is None else margin
+        heading = self._steer(want, math.hypot(dx, dy), points, margin)
         if heading is None:
             # Nothing free towards the target: turn towards it and let stuck detection decide.
             return self._rotate(want, points, t, f"{status} (blocked)", track=False)
@@ -800,6 +1012,59 @@ class Explorer:
             self._blocked_since = None
             return self._start_recovery(points, t)
         return Command(0.0, w, f"{status} (safety stop)")
+
+    def _aim(self, target: tuple[float, float], pose: Pose, t: float) -> tuple[tuple[float, float], float]:
+        """Where to steer now on the way to ``target`` (ASR frame), and the distance left (m): the
+        target itself when the straight line to it stays inside the ASR (or either end lies
+        outside it), else a point ``path_lookahead`` along a path planned inside the ASR."""
+        p = self.p
+        direct = (target, math.hypot(target[0] - pose[0], target[1] - pose[1]))
+        asr = self._asr
+        if asr is None or len(asr.boundary) < 3 or direct[1] < p.path_lookahead:
+            self._path = None
+            return direct
+        key = (asr.id, target)
+        if key != self._path_key or t - self._path_t > p.replan_time or self._off_path(pose):
+            self._path_key, self._path_t = key, t
+            self._path = None
+            far = self.goal is not None and self.goal.kind == "goto" and self._view is not None
+            # A far exit (goto) is reached through the whole map: every ASR, in this one's frame.
+            poly = self._map_area(self._view, asr) if far else shapely.make_valid(asr.polygon)
+            inner = poly.buffer(-p.half_width)
+            line = shapely.LineString([pose[:2], target])
+            ends_in = inner.covers(shapely.Point(pose[:2])) and inner.covers(shapely.Point(target))
+            if ends_in and not inner.covers(line):
+                self._path = plan_path(poly, (pose[0], pose[1]), target, p.path_cell, p.path_clearance)
+        path = self._path
+        if path is None or len(path) < 2:
+            return direct
+        d = np.hypot(path[:, 0] - pose[0], path[:, 1] - pose[1])
+        k = int(np.argmin(d))
+        seg = np.hypot(*np.diff(path[k:], axis=0).T)
+        along = np.concatenate([[0.0], np.cumsum(seg)])
+        j = k + int(np.searchsorted(along, p.path_lookahead))
+        aim = path[min(j, len(path) - 1)]
+        left = float(d[k] + along[-1]) + math.hypot(target[0] - path[-1, 0], target[1] - path[-1, 1])
+        return (float(aim[0]), float(aim[1])), left
+
+    def _map_area(self, view: MapView, asr: ASR) -> shapely.Geometry:
+        """Every ASR's polygon in ``asr``'s frame, each grown by a little so that neighbours meet
+        at their common exits, as one area (cached while the ASRs stay the same)."""
+        key = (asr.id, tuple((a.id, id(a.boundary), tuple(a.origin)) for a in view.asrs.values()))
+        if self._area_key != key:
+            to_here = inverse(asr.origin)
+            parts = [shapely.make_valid(shapely.Polygon(transform_points(compose(to_here, a.origin),
+                                                                         np.asarray(a.boundary))))
+                     for a in view.asrs.values() if len(a.boundary) >= 3]
+            self._area = shapely.union_all([q.buffer(0.05) for q in parts]) if parts else shapely.Polygon()
+            self._area_key = key
+        return self._area
+
+    def _off_path(self, pose: Pose) -> bool:
+        path = self._path
+        if path is None:
+            return False
+        return float(np.hypot(path[:, 0] - pose[0], path[:, 1] - pose[1]).min()) > 2.0 * self.p.path_lookahead
 
     def _steer(self, want: float, dist: float, points: np.ndarray, margin: float) -> float | None:
         """The heading (rad, robot frame) nearest ``want`` along which the way is free for

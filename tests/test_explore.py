@@ -152,7 +152,8 @@ def test_a_one_way_link_says_nothing_about_the_way_back():
     a1 = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3)), door(1, 1, (0, 1), (0, 3))])
     a2 = room(2, 0, 0, 4, 4, origin=(4.0, 0.0, 0.0), exits=[door(2, 0, (0, 1), (0, 3))])
     links = [LinkRef(1, "1/0", 2, "2/0", oneway=True)]
-    g = Planner().plan(view([a1, a2], 2, links=links))
+    # (Without the rule that an exit into mapped space needs no visit: 1 lies beyond 2/0.)
+    g = Planner(ExploreParams(known_depths=())).plan(view([a1, a2], 2, links=links))
     assert g.kind == "exit" and g.exit == "2/0"  # unexplored from this side, not a way back
 
 
@@ -271,3 +272,41 @@ def test_drives_through_a_doorway_without_touching_it():
         t += dt
     assert body.pose[0] > 4.5 and abs(body.pose[1] - 2.5) < 0.25
     assert not body.contacts
+
+
+def test_an_exit_into_space_another_asr_covers_needs_no_visit():
+    # 1 and 2 side by side in the global frame; 1's exit at x = 4 opens into 2's space, but no link
+    # says so (an open-plan room: a gap between tables). Only 1's far exit is left to explore.
+    a1 = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3)), door(1, 1, (1, 4), (3, 4))])
+    a2 = room(2, 0, 0, 4, 4, origin=(4.0, 0.0, 0.0))
+    g = Planner().plan(view([a1, a2], 1))
+    assert g.kind == "exit" and g.exit == "1/1"
+
+
+def test_with_no_way_back_it_heads_for_the_nearest_open_exit_of_any_asr():
+    # The robot stands in 2, whose only exit failed; 1 (not linked to 2) still has an open exit.
+    a1 = room(1, 0, 0, 4, 4, exits=[door(1, 0, (0, 1), (0, 3))])
+    a2 = room(2, 0, 0, 4, 4, origin=(6.0, 0.0, 0.0), exits=[door(2, 0, (4, 1), (4, 3))])
+    planner = Planner(ExploreParams(retries=0))
+    planner.failed(2, "2/0", (4.0, 2.0))
+    g = planner.plan(view([a1, a2], 2, pose=(2.0, 2.0, 0.0)))
+    assert g.kind == "goto" and g.path == (2, 1) and g.exit == "1/0"
+    assert g.through[0] < -6.0  # beyond 1's west doorway, at x = -6 in 2's frame
+
+
+def test_a_target_round_a_corner_is_reached_along_a_path_inside_the_asr():
+    # An L-shaped ASR: from the foot of the L to the top of its stem, the straight line crosses
+    # the corner outside the polygon; the path goes round it.
+    b = np.array([[0, 0], [6, 0], [6, 2], [2, 2], [2, 6], [0, 6]], dtype=float)
+    a = ASR(1, 1.0, (0.0, 0.0, 0.0), b, ["surface"] * 6, (2.0, 2.0))
+    from service.explore import plan_path
+
+    path = plan_path(a.polygon, (5.0, 1.0), (1.0, 5.0), 0.1, 0.3)
+    assert path is not None and np.hypot(*(path[0] - (5.0, 1.0))) < 0.2
+    assert np.hypot(*(path[-1] - (1.0, 5.0))) < 0.2
+    assert a.polygon.buffer(-0.25).contains(__import__("shapely").LineString(path))
+    ex = Explorer()
+    ex.step(view([a], 1, pose=(5.0, 1.0, math.pi)), np.zeros((0, 2)), 0.0)
+    aim, left = ex._aim((1.0, 5.0), (5.0, 1.0, math.pi), 0.0)
+    assert aim[1] < 2.0 - 0.25  # along the foot first, not straight at the corner
+    assert left > math.hypot(4.0, 4.0)

@@ -110,3 +110,21 @@ def test_a_restored_reference_matches_exactly_as_the_rebuilt_one():
     a, b = rebuilt.correct(here), restored.correct(here)
     assert a is not None and a == b
     assert np.array_equal(rebuilt.kf.x, restored.kf.x) and np.array_equal(rebuilt.kf.P, restored.kf.P)
+
+
+def test_along_a_featureless_corridor_the_match_leaves_the_along_axis_to_odometry():
+    # Two parallel walls, 16 m long, 1.6 m apart. The reference is seen from x = 0, the robot stands
+    # at x = 0.3 and odometry says so too: the walls say nothing about x, and the correlation along
+    # them is flat, so the match must not pull x back towards the reference (it used to, by the
+    # extent of the two point sets), while it still measures y.
+    walls = [((-8.0, -0.8), (8.0, -0.8)), ((-8.0, 0.8), (8.0, 0.8))]
+    p = MapperParams(laser_x=0.0, laser_y=0.0)
+    loc = Localiser(p)
+    loc.add_reference(scan_points(cast(walls, (0, 0, 0)), p).xy, (0.0, 0.0, 0.0))
+    loc.kf.x = np.array([0.3, 0.05, 0.0])  # odometry: right along x, 5 cm off in y
+    loc.kf.P = np.diag([0.1**2, 0.1**2, math.radians(2) ** 2])
+    match = loc.correct(scan_points(cast(walls, (0.3, 0.0, 0.0)), p).xy)
+    assert match is not None and match.accepted, match
+    assert match.q_u < p.min_quality or match.q_v < p.min_quality  # the along axis: not measured
+    assert loc.pose[0] == pytest.approx(0.3, abs=0.03)
+    assert abs(loc.pose[1]) < 0.03

@@ -90,16 +90,19 @@ def test_a_bad_world_is_one_line_on_stderr(tmp_path, capsys):
     assert "start: expected 3 numbers" in capsys.readouterr().err
 
 
-# The goals of the issue. Not met yet with the mapper as it stands (see the simulate README section):
-# in the open-plan lab and office the ASRs carry tens of exits each, so exploration does not end in
-# an hour of simulated time, and drift gives false closures; in the aliasing world's long corridor
-# localisation loses the along-corridor position. They XPASS (and show) once the mapper gets there.
-MAPPER_GOAL = pytest.mark.xfail(reason="mapper: exit density, false closures, corridor localisation",
-                                strict=False)
+# The goals of the issue. ``aliasing`` is met (deterministic for the default seed 0; 5 of seeds
+# 0-4 give no false closure in 1800 s). ``lab`` and ``office`` are not (README, "Simulation"): the
+# mapper's open-plan ASRs carry tens of exits each, most of them gaps between tables that lead
+# back into the same room, and the explorer's attempts at them (stuck, given up, retried) keep it
+# going past the hour, so exploration does not finish; revisits are missed, and in some seeds a
+# closure is still false. They XPASS (and show) once exploration gets there.
+EXPLORATION_GOAL = pytest.mark.xfail(
+    reason="exploration does not finish in an hour (tens of exits per open-plan ASR); revisits missed",
+    strict=False)
 
 
 @pytest.mark.slow
-@MAPPER_GOAL
+@EXPLORATION_GOAL
 @pytest.mark.parametrize("name", ["lab", "office"])
 def test_exploring_a_world_finishes_enters_every_region_and_closes_only_true_cycles(name):
     s = DirectSim(load_world(name), SimParams(max_duration=3600.0)).run()
@@ -111,12 +114,12 @@ def test_exploring_a_world_finishes_enters_every_region_and_closes_only_true_cyc
 
 
 @pytest.mark.slow
-@MAPPER_GOAL
 def test_identical_rooms_far_apart_give_no_false_closure():
     s = DirectSim(load_world("aliasing"), SimParams(max_duration=1800.0)).run()
     print("\n".join(s.lines()))
     assert not s.regions_missed
     assert s.false_cycles == 0
+    assert s.true_cycles >= 1
 
 
 @pytest.mark.slow
