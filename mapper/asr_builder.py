@@ -213,6 +213,19 @@ class AsrBuilder:
             self.stale = False
             self._relabel()
 
+    def clip_growth(self, before: shapely.Polygon, area: shapely.Geometry, robot: tuple[float, float]
+                    ) -> bool:
+        """Keep the ASR's growth since ``before`` (its polygon then) within ``area`` (ASR frame): what
+        it held before stays, so a clip through its middle cannot keep just the part round the frame's
+        origin. The labels follow when next needed (``stale``). True when anything was cut."""
+        if self.polygon.difference(area).area < self.p.min_area_gain:
+            return False
+        grown = shapely.intersection(self.polygon, area)
+        kept = grown if before.is_empty else shapely.union(before, grown)
+        self.polygon = self._single_ring(kept, shapely.Point(robot))
+        self.stale = True
+        return True
+
     def restart_path(self) -> None:
         """The robot did not walk here from the last viewpoint (it re-entered this ASR): the next
         view is not joined to the previous one by the swept corridor."""

@@ -349,11 +349,10 @@ class Mapper:
         changed = builder.add_view(view, pose, relabel=False)
         if changed:
             self._keep_closed_places(builder, before, pose)
-        self.timing["asr"] = time.perf_counter() - tic
-        if changed:
             self._stale = (t, aid)
-            if not self.defer_views:
-                self._settle_labels()
+        self.timing["asr"] = time.perf_counter() - tic
+        if changed and not self.defer_views:
+            self._settle_labels()
 
     def _settle_labels(self) -> None:
         """Relabel the ASR the last union grew, then its AsrUpdated and the cycle check."""
@@ -390,15 +389,7 @@ class Mapper:
             area = self._frozen.setdefault(a.id, before)
         else:
             return
-        area = area.buffer(self.params.duplicate_margin)
-        if b.polygon.difference(area).area < self.params.min_area_gain:
-            return
-        # Only the growth is clipped: what the ASR held before stays (a clip through its middle
-        # would otherwise keep just the part round the frame's origin).
-        kept = shapely.union(before, shapely.intersection(b.polygon, area)) if not before.is_empty else (
-            shapely.intersection(b.polygon, area))
-        b.polygon = b._single_ring(kept, shapely.Point(pose[:2]))
-        b.stale = True  # labels, exits and centre follow the clipped polygon when next needed
+        b.clip_growth(before, area.buffer(self.params.duplicate_margin), pose[:2])
 
     # --- crossing exits (§4): small methods, meant to be extended --------------------------------
     def _crossed_exit(

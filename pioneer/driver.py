@@ -36,7 +36,7 @@ import serialport
 from pioneer.commands import CONFIG_PAC, ENCODER_PAC, SIP_TYPES, Command, command, cstrings, vel2_arg
 from pioneer.errors import CHECKS, LinkLost, PioneerError, PortUnavailable, ProtocolError
 from pioneer.odometry import OdometryIntegrator, PioneerOdometry, wrap15
-from pioneer.packet import STALL_S, Packet, PacketReader
+from pioneer.packet import Packet, PacketReader
 from pioneer.params import P2DX, RobotParams
 from pioneer.sip import EncoderCounts, decode_config, decode_encoder, decode_sip
 
@@ -152,7 +152,6 @@ class Pioneer:
         self._wlock = threading.Lock()
         self._closing = threading.Event()
         self._reader = PacketReader()
-        self._last_rx = 0.0  # host time of the last byte read
         self._pending: deque[tuple[Packet, float]] = deque()
         self._integrator = OdometryIntegrator(params)
         self._seto_deadline: float | None = None
@@ -334,14 +333,11 @@ class Pioneer:
             self._port_broken = True
             raise LinkLost(f"reading {self.port} failed: {exc}; {CHECKS}") from exc
         t = time.monotonic()
-        if data:
-            self._last_rx = t
-            packets = self._reader.feed(data)
-        elif self._reader.pending and t - self._last_rx > STALL_S:
-            t = self._last_rx  # what the stalled bytes hold arrived by the last read
-            packets = self._reader.expire()
-        else:
+        packets = self._reader.receive(data, t)
+        if not packets:
             return []
+        if not data:
+            t = self._reader.last_rx  # expired: what the stalled bytes held arrived by the last read
         per_byte = 10.0 / (self._ser.baudrate or self.baudrate)  # 8N1: ten bits a byte
         # A late read (USB latency, a busy host) completes several SIPs at once. They were sent one
         # after the other, so each ends where the next begins: stamping them all from the read's time

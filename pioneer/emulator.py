@@ -39,7 +39,7 @@ from pioneer.commands import (
     sync2_reply,
     vel2_wheels,
 )
-from pioneer.packet import STALL_S, Packet, PacketReader, frame
+from pioneer.packet import Packet, PacketReader, frame
 from pioneer.params import P2DX, RobotParams
 from pioneer.physics import Body, DiffDrive, MotionHook, OdometryError, Pose
 from pioneer.sip import SIP, EncoderCounts, RobotConfig, encode_config, encode_encoder, encode_sip
@@ -120,7 +120,6 @@ class PioneerEmulator(DeviceThread):
         self.received: deque[tuple[float, str, int | None]] = deque(maxlen=4096)
         self._estop_button = False
         self._reader = PacketReader()
-        self._last_rx = 0.0  # host time of the last byte read
         self._lock = threading.RLock()
         self._last_client = time.monotonic()
         self._watchdog_tripped = False
@@ -195,12 +194,7 @@ class PioneerEmulator(DeviceThread):
             if data and self.baud is not None and self._line_baud() != self.baud:
                 self._counters["bytes_lost"] += len(data)  # framing errors at the wrong rate
                 data = b""
-            packets = []
-            if data:
-                packets = self._reader.feed(data)
-                self._last_rx = time.monotonic()
-            elif self._reader.pending and time.monotonic() - self._last_rx > STALL_S:
-                packets = self._reader.expire()
+            packets = self._reader.receive(data, time.monotonic())
             if packets:
                 now = time.monotonic()
                 with self._lock:

@@ -74,7 +74,8 @@ class PacketReader:
     packets given up by :meth:`expire`).
     """
 
-    __slots__ = ("_buf", "bad_checksums", "bad_counts", "bytes_skipped", "max_count", "packets_ok", "stalled")
+    __slots__ = ("_buf", "bad_checksums", "bad_counts", "bytes_skipped", "last_rx", "max_count", "packets_ok",
+                 "stalled")
 
     def __init__(self, max_count: int = MAX_COUNT) -> None:
         self._buf = b""
@@ -84,6 +85,7 @@ class PacketReader:
         self.bad_counts = 0
         self.bytes_skipped = 0
         self.stalled = 0
+        self.last_rx = 0.0  # host time (s) of the last read that brought bytes, for receive()
 
     def feed(self, data: bytes) -> list[Packet]:
         """Append ``data`` and return every packet completed by it, in order."""
@@ -124,6 +126,17 @@ class PacketReader:
             i = end
         self._buf = buf[i:]
         return out
+
+    def receive(self, data: bytes, now: float) -> list[Packet]:
+        """:meth:`feed` for a read made at host time ``now`` (s). A read that brought nothing, while a
+        partial packet has waited more than :data:`STALL_S` since the last bytes, expires it
+        (:meth:`expire`)."""
+        if data:
+            self.last_rx = now
+            return self.feed(data)
+        if self._buf and now - self.last_rx > STALL_S:
+            return self.expire()
+        return []
 
     def expire(self) -> list[Packet]:
         """The line fell silent with a packet pending (see :data:`STALL_S`): that header was noise.
