@@ -48,7 +48,9 @@ def test_events_and_asr_updates_reach_the_view():
         _until(mon, lambda s: any(u.kind == "map" for u in s))
         bus.publish_asr({**DOC["asrs"][0], "id": 4, "scans": 7})
         bus.publish_event({"event": "asr_created", "t": 1.5, "asr": 4, "origin": [1.0, 2.0, 0.5]})
-        seen = _until(mon, lambda s: any(u.kind == "event" for u in s))
+        # the ASR and the event have their own subscribers: either may be handled first
+        seen = _until(mon, lambda s: any(u.kind == "event" for u in s)
+                      and any(a["id"] == 4 for a in mon.robots["r1"].doc["asrs"]))
         line = format_update(next(u for u in seen if u.kind == "event"))
         assert line == "r1  asr_created t=1.50 asr=4 origin=(1.00, 2.00, 0.50)"
         assert [a["id"] for a in mon.robots["r1"].doc["asrs"]] == [1, 2, 3, 4]
