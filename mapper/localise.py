@@ -71,41 +71,43 @@ class Match:
     reason: str
 
 
-def _directions(xy: np.ndarray, max_gap: float) -> np.ndarray:
-    """Undirected directions (rad, in [0, pi)) between points ``_STRIDE`` apart in the sweep."""
+def _chords(xy: np.ndarray, max_gap: float) -> tuple[np.ndarray, np.ndarray]:
+    """Directions and surface angles of a sweep (rad, in the frame of ``xy``), both from the chords
+    between points ``_STRIDE`` apart.
+
+    *Directions* (in [0, pi), undirected) of the chords 5 cm to ``max_gap`` long: the rotation
+    histogram's samples. *Surface angles*, one per point: the direction of the chord between its
+    neighbours two beams either side, when they are close together, or farther apart (a wall seen
+    at a grazing angle) but in line with the point; NaN otherwise (an isolated point: a leg, a
+    corner)."""
+    ang = np.full(len(xy), np.nan)
     if len(xy) <= _STRIDE:
-        return np.zeros(0)
+        return np.zeros(0), ang
     d = xy[_STRIDE:] - xy[:-_STRIDE]
-    n = np.hypot(d[:, 0], d[:, 1])
-    ok = (n > 0.05) & (n < max_gap)
-    return np.mod(np.arctan2(d[ok, 1], d[ok, 0]), np.pi)
+    dx, dy = d[:, 0], d[:, 1]
+    n = np.hypot(dx, dy)
+    a = np.arctan2(dy, dx)
+    h = _STRIDE // 2
+    r = xy[h:-h] - xy[:-_STRIDE]
+    off = np.abs(dx * r[:, 1] - dy * r[:, 0]) / np.maximum(n, 1e-9)  # of the point from the chord
+    short = n < max_gap
+    ang[h:-h] = np.where((n > 0.02) & (short | ((n < 8.0 * max_gap) & (off < 0.05))), a, np.nan)
+    return np.mod(a[(n > 0.05) & short], np.pi), ang
 
 
-def _surface_angle(xy: np.ndarray, max_gap: float) -> np.ndarray:
-    """Direction (rad) of the surface through each point of a sweep, from its neighbours two beams
-    either side: close together, or farther apart (a wall seen at a grazing angle) but in line with
-    the point; NaN otherwise (an isolated point: a leg, a corner)."""
-    out = np.full(len(xy), np.nan)
-    if len(xy) < 5:
-        return out
-    d = xy[4:] - xy[:-4]
-    n = np.hypot(d[:, 0], d[:, 1])
-    r = xy[2:-2] - xy[:-4]
-    off = np.abs(d[:, 0] * r[:, 1] - d[:, 1] * r[:, 0]) / np.maximum(n, 1e-9)  # from the chord
-    ok = (n > 0.02) & ((n < max_gap) | ((n < 8.0 * max_gap) & (off < 0.05)))
-    out[2:-2] = np.where(ok, np.arctan2(d[:, 1], d[:, 0]), np.nan)
-    return out
-
-
-def _axis_weights(angle: np.ndarray, alpha: float) -> tuple[np.ndarray, np.ndarray]:
-    """How much each point tells about position along u (the direction ``alpha``) and along v: the
-    component of its surface's normal on that axis. A wall along u says nothing about u (its points
-    only crowd where the laser was, which drags a match back to the reference's viewpoint); a wall
-    across u says all. Isolated points (legs) tell about both."""
+def _axis_weights(angle: np.ndarray, alpha: float) -> np.ndarray:
+    """How much each point tells about position along u (the direction ``alpha``) and along v
+    (columns 0 and 1 of the (K, 2) result): the component of its surface's normal on that axis. A
+    wall along u says nothing about u (its points only crowd where the laser was, which drags a
+    match back to the reference's viewpoint); a wall across u says all. Isolated points (surface
+    angle NaN: legs) tell about both."""
     rel = angle - alpha
-    wu = np.where(np.isnan(rel), 1.0, np.abs(np.sin(rel)))
-    wv = np.where(np.isnan(rel), 1.0, np.abs(np.cos(rel)))
-    return wu, wv
+    w = np.empty((len(rel), 2))
+    np.sin(rel, out=w[:, 0])
+    np.cos(rel, out=w[:, 1])
+    np.abs(w, out=w)
+    w[np.isnan(rel)] = 1.0
+    return w
 
 
 def _hist_circular(angles: np.ndarray, nbins: int) -> np.ndarray:
@@ -116,14 +118,17 @@ def _hist_circular(angles: np.ndarray, nbins: int) -> np.ndarray:
     return np.convolve(hp, _SMOOTH, mode="valid")
 
 
-def _peak(c: np.ndarray) -> float:
-    """Index of the maximum of c refined by a parabola through it and its neighbours."""
-    i = int(np.argmax(c))
+def _peak(c: np.ndarray) -> tuple[float, int, float]:
+    """The maximum of c: its index refined by a parabola through it and its neighbours, its index,
+    and its value."""
+    i = int(c.argmax())
+    top = float(c[i])
     if 0 < i < len(c) - 1:
-        den = c[i - 1] - 2.0 * c[i] + c[i + 1]
+        lo, hi = float(c[i - 1]), float(c[i + 1])
+        den = lo - 2.0 * top + hi
         if den < 0:
-            return i + 0.5 * (c[i - 1] - c[i + 1]) / den
-    return float(i)
+            return i + 0.5 * (lo - hi) / den, i, top
+    return float(i), i, top
 
 
 def _rot(a: float) -> np.ndarray:
@@ -196,7 +201,7 @@ class Localiser:
             pts = transform_points(pose, xy)
             if self._refs and len(self._refs) > self.p.reference_scans:
                 del self._refs[1]  # keep the first (anchors the frame) and the latest ones
-            self._refs.append((pts, _directions(pts, gap), _surface_angle(pts, gap)))
+            self._refs.append((pts, *_chords(pts, gap)))
         if scans:
             self._build_reference()
 
@@ -211,14 +216,14 @@ class Localiser:
         self._hr = _hist_circular(dirs, self._nb)
         self._hr_shifted = self._hr[self._rot_index]  # (shifts, bins): the rotation correlation is one matvec
         self._hr_norm = float(np.sqrt(self._hr @ self._hr))
-        self._alpha = (_peak(self._hr) + 0.5) * p.angle_bin
+        self._alpha = (_peak(self._hr)[0] + 0.5) * p.angle_bin
         uv = pts @ _rot(self._alpha)  # rows rotated by -alpha
         self._uv0 = uv.min(axis=0) - p.max_translation
         nb = np.floor((uv.max(axis=0) + p.max_translation - self._uv0) / p.xy_bin).astype(int) + 1
         b = np.floor((uv - self._uv0) / p.xy_bin).astype(int)
-        wu, wv = _axis_weights(wts, self._alpha)
-        hu = np.bincount(b[:, 0], weights=wu, minlength=nb[0])
-        hv = np.bincount(b[:, 1], weights=wv, minlength=nb[1])
+        w = _axis_weights(wts, self._alpha)
+        hu = np.bincount(b[:, 0], weights=w[:, 0], minlength=nb[0])
+        hv = np.bincount(b[:, 1], weights=w[:, 1], minlength=nb[1])
         tw = self._tw
         # u and v histograms side by side, each padded by the search window, then a zero window
         # where scan points beyond the reference fall (index sink - tw)
@@ -235,15 +240,16 @@ class Localiser:
         if not self._ref_ready or len(xy) < 10:
             return None
         p = self.p
-        x, y, th = self.pose
-        dirs = _directions(xy, p.direction_max_gap)
+        kf = self.kf
+        x, y, th = float(kf.x[0]), float(kf.x[1]), wrap(float(kf.x[2]))
+        dirs, ang = _chords(xy, p.direction_max_gap)
         if len(dirs) < 10:
             return None
         bins = np.floor(np.mod(dirs + th, np.pi) * (self._nb / np.pi)).astype(int) % self._nb
         hc = np.bincount(bins, minlength=self._nb).astype(float)
         c = self._hr_shifted @ hc
-        s = _peak(c)
-        q_th = _norm_peak(float(c.max()), float(np.sqrt(hc @ hc)), self._hr_norm)
+        s, _, top = _peak(c)
+        q_th = _norm_peak(top, math.sqrt(hc @ hc), self._hr_norm)
         th_m = wrap(th + (s - (len(c) - 1) / 2.0) * p.angle_bin)
         if q_th < p.min_quality:
             return Match((x, y, th_m), q_th, 0.0, 0.0, False, "rotation quality")
@@ -257,24 +263,27 @@ class Localiser:
         idx = np.where((b >= 0) & (b < self._nuv), b + self._offsets, out)  # (K, 2)
         # C(d) = sum_b h_scan(b) h_ref(b + d): the scan's histogram (each point weighted on each axis
         # by its surface normal's component) times the reference's windows; the sink's window is 0
-        w = np.column_stack(_axis_weights(_surface_angle(xy, p.direction_max_gap) + th_m, self._alpha))
+        w = _axis_weights(ang + th_m, self._alpha)  # (K, 2)
         h = np.bincount(idx.ravel(), weights=w.ravel(), minlength=len(self._huv))
         split = self._offsets[1]
         cu = h[tw:split] @ self._windows[: split - tw]
         cv = h[split : len(h) - tw] @ self._windows[split - tw :]
-        shifts = np.array([(_peak(cu) - tw) * p.xy_bin, (_peak(cv) - tw) * p.xy_bin])
+        su, iu, top_u = _peak(cu)
+        sv, iv, top_v = _peak(cv)
+        shifts = np.array([(su - tw) * p.xy_bin, (sv - tw) * p.xy_bin])
         h[out] = 0.0
         h *= h
-        norm_u, norm_v = math.sqrt(h[: self._offsets[1]].sum()), math.sqrt(h[self._offsets[1] :].sum())
-        qs = (
-            _norm_peak(float(cu.max()), norm_u, self._huv_norm[0]) * _prominence(cu, p.prominence_bins,
-                                                                                 p.prominence_full),
-            _norm_peak(float(cv.max()), norm_v, self._huv_norm[1]) * _prominence(cv, p.prominence_bins,
-                                                                                 p.prominence_full),
-        )
+        norm_u, norm_v = math.sqrt(h[:split].sum()), math.sqrt(h[split:].sum())
         # An axis few surfaces face (the along-corridor one) counts only as much as they are there.
-        info = np.clip(w.sum(axis=0) / (len(w) * p.axis_info_full), 0.0, 1.0)
-        qs = (qs[0] * float(info[0]), qs[1] * float(info[1]))
+        info_u, info_v = (w.sum(axis=0) / (len(w) * p.axis_info_full)).tolist()
+        qs = (
+            _norm_peak(top_u, norm_u, self._huv_norm[0])
+            * _prominence(cu, iu, p.prominence_bins, p.prominence_full)
+            * min(max(info_u, 0.0), 1.0),
+            _norm_peak(top_v, norm_v, self._huv_norm[1])
+            * _prominence(cv, iv, p.prominence_bins, p.prominence_full)
+            * min(max(info_v, 0.0), 1.0),
+        )
         ra = _rot(self._alpha)
         corr = ra @ shifts
         var_uv = [(p.match_sigma_xy / q) ** 2 if q >= p.min_quality else _NOT_MEASURED for q in qs]
@@ -282,14 +291,14 @@ class Localiser:
         r[:2, :2] = (ra * var_uv) @ ra.T
         r[2, 2] = (p.match_sigma_theta / q_th) ** 2
         z = np.array([x + corr[0], y + corr[1], th + wrap(th_m - th)])
-        innov = z - self.kf.x
+        innov = z - kf.x
         innov[2] = wrap(float(innov[2]))
-        d2 = _mahalanobis2(innov, self.kf.P + r)
+        d2 = _mahalanobis2(innov, kf.P + r)
         pose_m = (float(z[0]), float(z[1]), wrap(float(z[2])))
         if d2 > p.gate_chi2:
             return Match(pose_m, q_th, qs[0], qs[1], False, f"gate (d2 {d2:.1f})")
-        self.kf.update(z, R=r)
-        self.kf.x[2] = wrap(float(self.kf.x[2]))
+        kf.update(z, R=r)
+        kf.x[2] = wrap(float(kf.x[2]))
         return Match(pose_m, q_th, qs[0], qs[1], True, "ok")
 
 
@@ -299,20 +308,19 @@ def _norm_peak(peak: float, norm_a: float, norm_b: float) -> float:
     return peak / den if den > 0 else 0.0
 
 
-def _prominence(c: np.ndarray, bins: int, full: float) -> float:
-    """How distinct the peak of a translation correlation ``c`` is, 0..1: 1 - (the largest value
-    ``bins`` or more bins away from the peak) / (the peak), scaled so that ``full`` counts as 1.
+def _prominence(c: np.ndarray, i: int, bins: int, full: float) -> float:
+    """How distinct the peak ``c[i]`` of a translation correlation ``c`` is, 0..1: 1 - (the largest
+    value ``bins`` or more bins away from the peak) / (the peak), scaled so that ``full`` counts as 1.
 
     A histogram without structure along an axis (the walls of a corridor, seen along it) correlates
     almost equally at every shift: its cosine similarity is high, but its peak sits wherever the
     two point sets' extents overlap most, which drags the estimate back towards the reference."""
-    i = int(np.argmax(c))
     peak = float(c[i])
     if peak <= 0.0:
         return 0.0
-    far = np.abs(np.arange(len(c)) - i) >= bins
-    rest = float(c[far].max()) if far.any() else 0.0
-    return float(np.clip((1.0 - rest / peak) / full, 0.0, 1.0))
+    lo, hi = c[: max(i - bins + 1, 0)], c[i + bins :]
+    rest = max(float(lo.max()) if len(lo) else 0.0, float(hi.max()) if len(hi) else 0.0)
+    return min(max((1.0 - rest / peak) / full, 0.0), 1.0)
 
 
 def _mahalanobis2(y: np.ndarray, s: np.ndarray) -> float:
