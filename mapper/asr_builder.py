@@ -35,7 +35,7 @@ import math
 import numpy as np
 import shapely
 
-from mapper.exits import closest_on_segments
+from mapper.exits import closest_xy
 from mapper.params import MapperParams
 from mapper.se2 import Pose, transform_points
 from mapper.types import ASR, Exit
@@ -54,8 +54,8 @@ def _pairs_within(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.ndarra
     on y and then by exact distance. The cost follows the candidates, not the product of the sizes
     of an ASR's boundary and label store.
     """
-    lo = seg.min(axis=1) - tol  # (S, 2)
-    hi = seg.max(axis=1) + tol
+    lo = np.minimum(seg[:, 0], seg[:, 1]) - tol  # (S, 2)
+    hi = np.maximum(seg[:, 0], seg[:, 1]) + tol
     order = np.argsort(p[:, 0], kind="stable")
     xs = p[order, 0]
     i0 = np.searchsorted(xs, lo[:, 0], side="left")
@@ -66,8 +66,9 @@ def _pairs_within(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.ndarra
     y = p[pi, 1]
     ok = (y >= lo[si, 1]) & (y <= hi[si, 1])
     pi, si = pi[ok], si[ok]
-    q, _ = closest_on_segments(p[pi], seg[si])
-    d = np.hypot(*(q - p[pi]).T)
+    px, py = p[pi, 0], p[pi, 1]
+    qx, qy, _ = closest_xy(px, py, seg[si])
+    d = np.hypot(qx - px, qy - py)
     near = d < tol
     return pi[near], si[near], d[near]
 

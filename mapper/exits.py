@@ -71,11 +71,18 @@ def closest_on_segments(p: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.
 
     Returns the points (..., 2) and their fractions t in [0, 1] along each segment.
     """
-    a = seg[..., 0, :]
-    ab = seg[..., 1, :] - a
-    den = np.maximum(np.einsum("...i,...i->...", ab, ab), 1e-18)
-    t = np.clip(np.einsum("...i,...i->...", p - a, ab) / den, 0.0, 1.0)
-    return a + t[..., None] * ab, t
+    qx, qy, t = closest_xy(p[..., 0], p[..., 1], seg)
+    return np.stack((qx, qy), axis=-1), t
+
+
+def closest_xy(px: np.ndarray, py: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`closest_on_segments` by components: points (px, py) (...), segments (..., 2, 2);
+    the closest points' x and y and the fractions t along the segments."""
+    ax, ay = seg[..., 0, 0], seg[..., 0, 1]
+    abx, aby = seg[..., 1, 0] - ax, seg[..., 1, 1] - ay
+    den = np.maximum(abx * abx + aby * aby, 1e-18)
+    t = np.clip(((px - ax) * abx + (py - ay) * aby) / den, 0.0, 1.0)
+    return ax + t * abx, ay + t * aby, t
 
 
 def _shortest(
@@ -95,14 +102,10 @@ def _shortest(
     valid = (kw >= 0) & (kw < m)
     kw = np.clip(kw, 0, m - 1)
     segw = seg[kw]  # (G, W, 2, 2)
-    # closest points Q on the window's surfaces (closest_on_segments, by components: cheaper)
-    ax, ay = segw[..., 0, 0], segw[..., 0, 1]
-    abx, aby = segw[..., 1, 0] - ax, segw[..., 1, 1] - ay
     px, py = pp[:, 0:1], pp[:, 1:2]
-    den = np.maximum(abx * abx + aby * aby, 1e-18)
-    tq = np.clip(((px - ax) * abx + (py - ay) * aby) / den, 0.0, 1.0)
-    q = np.stack((ax + tq * abx, ay + tq * aby), axis=-1)
-    length = np.hypot(q[..., 0] - px, q[..., 1] - py)
+    qx, qy, tq = closest_xy(px, py, segw)  # closest points Q on the window's surfaces
+    q = np.stack((qx, qy), axis=-1)
+    length = np.hypot(qx - px, qy - py)
     length[~valid] = np.inf
     # only the few shortest candidates of each gap are checked for visibility: a longer one is
     # taken only when all of these are hidden, and then the gap is wide open anyway
