@@ -224,6 +224,11 @@ class AsrBuilder:
         grown = shapely.intersection(self.polygon, area)
         kept = grown if before.is_empty else shapely.union(before, grown)
         self.polygon = self._single_ring(kept, shapely.Point(robot))
+        if self.viewpoints:  # a viewpoint in the part cut off is no longer one of this ASR's
+            xy = np.array([v[:2] for v in self.viewpoints])
+            inside = shapely.covers(self.polygon, shapely.points(xy))
+            self.viewpoints = [v for v, k in zip(self.viewpoints, inside, strict=True) if k]
+            self._recorded = len(self.viewpoints)
         self.stale = True
         return True
 
@@ -307,6 +312,8 @@ class AsrBuilder:
             ev = ev / np.maximum(np.hypot(ev[:, 0], ev[:, 1]), 1e-12)[:, None]
             gone = np.stack([a[explained], b[explained]], axis=1)
             self.exit_segments = es[~_along(0.5 * (es[:, 0] + es[:, 1]), ev, gone, p.label_tolerance)]
+        if self.polygon.area < p.sliver_area:
+            return None  # a sliver: its next views grow it through its exit (MapperParams.sliver_area)
         keep = ~explained
         key = (a[keep].tobytes(), b[keep].tobytes())
         if self._gate_cache is not None and self._gate_cache[0] == key:

@@ -78,6 +78,13 @@ _ODOM_KEEP = 4096  # odometry readings kept for interpolation (minutes at 20 Hz)
 _SPARE = 1.5e-3
 
 
+def _outward_x(e: Exit) -> float:
+    """x of the unit normal on the outside of exit ``e`` (right of a -> b, the ASR boundary being
+    counter-clockwise), in its ASR's frame: +1 faces ahead of a robot at the origin, -1 behind."""
+    d = np.subtract(e.b, e.a)
+    return float(d[1] / max(float(np.hypot(*d)), 1e-12))
+
+
 def _segments_cross(p0, p1, a, b) -> tuple[bool, tuple[float, float]]:
     """Whether segment p0-p1 crosses segment a-b, and where (m)."""
     r = (p1[0] - p0[0], p1[1] - p0[1])
@@ -260,15 +267,26 @@ class Mapper:
         pose = self.pose
         timing["localise"] = time.perf_counter() - tic
         # inside the polygon the robot neither crossed an exit nor left elsewhere (distance 0)
-        inside = bool(shapely.contains_xy(self._builders[self.current].polygon, pose[0], pose[1]))
-        crossed = self._crossed_exit(prev, pose, inside)
-        if crossed is None and not inside:
-            crossed = self._left_elsewhere(prev, pose)
+        b = self._builders[self.current]
+        inside = bool(shapely.contains_xy(b.polygon, pose[0], pose[1]))
+        sliver = self._is_sliver(b)
+        crossed = None
+        held = sliver and (inside or b.polygon.distance(shapely.Point(pose[:2])) <= self.params.sliver_leave)
+        if not held:  # a sliver near the robot is not left: its next views grow it
+            crossed = self._crossed_exit(prev, pose, inside)
+            if crossed is None and not inside:
+                crossed = self._left_elsewhere(prev, pose)
         if crossed is not None:
             return self._leave_through(scan.t, crossed[0], crossed[1], pose, pts)
-        if self._is_viewpoint(pose):
+        if sliver or self._is_viewpoint(pose):
             return self._add_view(scan.t, pts, pose)
         return []
+
+    def _is_sliver(self, b: AsrBuilder) -> bool:
+        """Whether ASR ``b`` is still a sliver (``MapperParams.sliver_area``): not left through its
+        exits while the robot is near it, and grown by every scan. An ASR with no polygon yet
+        (nothing seen) is not: nothing would grow it."""
+        return not b.polygon.is_empty and b.polygon.area < self.params.sliver_area
 
     # --- growing the current ASR -----------------------------------------------------------------
     def _is_viewpoint(self, pose: Pose) -> bool:
@@ -437,11 +455,6 @@ class Mapper:
         here = shapely.Point(pose[:2])
         if b.polygon.is_empty or b.polygon.distance(here) <= self.params.leave_margin:
             return None
-        if b.polygon.area < self.params.cycles.min_area:
-            # A sliver of a first view (taken on a doorway, the view mostly cut off) is no place to
-            # leave: an exit opened on it can face anywhere, and its gate would stop the ASR from
-            # growing round the robot. The next views grow it.
-            return None
         ring = b.polygon.exterior
         hit = ring.intersection(shapely.LineString([prev[:2], pose[:2]]))
         if hit.is_empty:
@@ -498,13 +511,11 @@ class Mapper:
         right of a -> b, away from the robot's heading, +x): on a sliver of a first view the chord
         can come out anywhere, and a gate ahead of the robot would stop the ASR from growing."""
         b = self._builders[asr]
-        if b.polygon.area < self.params.cycles.min_area:
+        if b.polygon.area < self.params.sliver_area:
             return None
         saved = (b.exit_segments, list(b.asr.exits), b.asr.boundary, list(b.asr.edges), b._next_exit)
         e = b.open_exit(at)
-        d = np.subtract(e.b, e.a)
-        outward_x = d[1] / max(float(np.hypot(*d)), 1e-12)  # x of the right normal (d_y, -d_x)
-        if outward_x < -0.5 and e.midpoint[0] < 0.3:
+        if _outward_x(e) < -0.5 and e.midpoint[0] < 0.3:
             return e
         b.exit_segments, b.asr.exits, b.asr.boundary, b.asr.edges, b._next_exit = saved
         return None
@@ -533,9 +544,18 @@ class Mapper:
         return events
 
     def _entrance(self, asr: int, at: tuple[float, float]) -> Exit | None:
-        """The exit of ``asr`` nearest the crossing point ``at`` (its frame), within a passage width."""
+        """The exit of ``asr`` nearest the crossing point ``at`` (its frame), within a passage width,
+        that does not face ahead.
+
+        The robot came in from behind (the frame's -x): an exit whose outside lies ahead of it
+        (right of a -> b, towards +x) is the way on, not the way in. A first view taken on the
+        doorway is a sliver whose only exit is its front edge; taken as the entrance, its crossing
+        was ignored as the robot walked on (entry hysteresis) and its gate kept every later view
+        from growing the ASR ahead: in the Intel log the robot stayed in a 0.1 m² ASR for 2700 scans."""
         best, best_d = None, 2.0 * self.params.passage_width
         for e in self._asrs[asr].exits:
+            if _outward_x(e) > 0.5:
+                continue
             a, b = np.asarray(e.a), np.asarray(e.b)
             ab = b - a
             tt = float(np.clip(np.dot(np.asarray(at) - a, ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0))

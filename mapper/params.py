@@ -80,6 +80,15 @@ class MapperParams:
     #: m. The robot has left its ASR, even without crossing an exit, once it is this far outside
     #: the polygon: half a passage width, beyond localisation jitter at the boundary.
     leave_margin: float = 0.30
+    #: m². An ASR smaller than this is a *sliver*: a first view taken on a doorway, cut off by the
+    #: doorway's own exit just ahead. A sliver's exits neither gate later views nor are left
+    #: through, and each scan is a view, until the views grow it into the room beyond (or the
+    #: robot gets ``sliver_leave`` outside it). A room is several m².
+    sliver_area: float = 1.0
+    #: m. How far outside a sliver the robot may get before it leaves it anyway, as it leaves any
+    #: ASR (a sliver its views cannot grow: a passage narrower than the laser sees through): two
+    #: passage widths.
+    sliver_leave: float = 1.2
     #: m. Depth of the region beyond each exit of an ASR that later views may not grow into (the
     #: next room seen through a doorway belongs to the next ASR): a room's worth.
     gate_depth: float = 4.0
