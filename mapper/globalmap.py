@@ -190,6 +190,12 @@ class GlobalMap:
                     survivors.append((overlap, m, cm, "aligned-crosscheck", align))
                 continue
             if not _mutual(poly, c, pm, cm, p.crosscheck_margin):
+                if p.search_radius > 0 and p.verify:
+                    # Beyond the paper: the centres disagree by the drift; aligned, they may not.
+                    align = self._align(n, m, gate=max(1.0, p.search_radius))
+                    if self._verified(align, n, m) and align.constraint >= p.verify_min_constraint:
+                        survivors.append((overlap, m, cm, "aligned-crosscheck", align))
+                        continue
                 self._rejected.setdefault((n, m), t)
                 events += self._decide(t, n, m, c, cm, overlap, "centre-crosscheck", False)
             else:
