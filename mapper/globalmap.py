@@ -185,17 +185,16 @@ class GlobalMap:
             if not pm.intersects(centre):
                 # Beyond the paper: near, not containing. Only surface alignment can make it a
                 # match: the crosscheck is run again with the alignment applied (in _verified).
-                align = self._align(n, m, gate=max(1.0, p.search_radius))
-                if self._verified(align, n, m) and align.constraint >= p.verify_min_constraint:
+                align = self._align_near(n, m, poly, cm)
+                if align is not None:
                     survivors.append((overlap, m, cm, "aligned-crosscheck", align))
                 continue
             if not _mutual(poly, c, pm, cm, p.crosscheck_margin):
-                if p.search_radius > 0 and p.verify:
-                    # Beyond the paper: the centres disagree by the drift; aligned, they may not.
-                    align = self._align(n, m, gate=max(1.0, p.search_radius))
-                    if self._verified(align, n, m) and align.constraint >= p.verify_min_constraint:
-                        survivors.append((overlap, m, cm, "aligned-crosscheck", align))
-                        continue
+                # Beyond the paper: the centres disagree by the drift; aligned, they may not.
+                align = self._align_near(n, m, poly, cm) if p.search_radius > 0 else None
+                if align is not None:
+                    survivors.append((overlap, m, cm, "aligned-crosscheck", align))
+                    continue
                 self._rejected.setdefault((n, m), t)
                 events += self._decide(t, n, m, c, cm, overlap, "centre-crosscheck", False)
             else:
@@ -238,6 +237,20 @@ class GlobalMap:
         self.cycles.append(CycleRecord(float(t), n, m, accepted, float(overlap), reason))
         cls = CycleDetected if accepted else CycleRejected
         return [cls(float(t), n, m, tuple(c), tuple(cm), float(overlap), reason)]
+
+    def _align_near(self, n: int, m: int, poly_n: shapely.Geometry, cm: tuple[float, float]
+                    ) -> Alignment | None:
+        """The surface alignment of n onto the nearby m when it verifies and constrains both axes
+        (``verify_min_constraint``: its alignment is the only evidence), else None. Not tried when
+        m's centre lies farther from n's polygon (global frame) than the largest correction
+        allowed: no verified alignment could bring it inside."""
+        p = self.params
+        if not p.verify or poly_n.distance(shapely.Point(cm)) > p.verify_max_correction:
+            return None
+        align = self._align(n, m, gate=max(1.0, p.search_radius))
+        if self._verified(align, n, m) and align.constraint >= p.verify_min_constraint:
+            return align
+        return None
 
     def _align(self, n: int, m: int, gate: float = 1.0) -> Alignment | None:
         """Surface alignment of n onto m (see :meth:`_align_pair`); ``gate``: ICP's first
