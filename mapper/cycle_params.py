@@ -41,7 +41,7 @@ class CycleParams:
     A centre near the other's boundary is where drift and the ragged outline of real ASRs (spikes
     seen through gaps) decide, not the place; 0 is the paper's test."""
 
-    search_radius: float = 3.0
+    search_radius: float = 2.0
     """m. Beyond the paper (needs ``verify``): ASRs whose global polygon comes within this distance of
     the current centre without containing it are aligned by their surfaces, and become candidates if
     the crosscheck passes with the alignment applied (reason ``aligned-crosscheck``). Recovers
@@ -70,7 +70,7 @@ class CycleParams:
     verify_inlier_distance: float = 0.2
     """m. A surface point is an inlier when its nearest surface point of the other ASR is this close."""
 
-    verify_max_correction: float = 3.0
+    verify_max_correction: float = 2.0
     """m. The ICP correction may move the current ASR this far at most (as far as ``search_radius``
     looks): beyond it the alignment found is more likely another local minimum than the drift."""
 
