@@ -132,6 +132,10 @@ class Mapper:
         # from it for a crossing of that exit to count again.
         self._entry: tuple[int, str | None] | None = None
         self._armed = True
+        # Where (current ASR frame) the robot came into the current ASR, and whether it has been
+        # inside its polygon since (see _may_leave_elsewhere).
+        self._entered_at: tuple[float, float] | None = None
+        self._been_inside = True
         # After from_document: the ASR and pose (its frame) the robot is assumed to restart at.
         self._resume: tuple[int, Pose] | None = None
 
@@ -261,11 +265,15 @@ class Mapper:
         timing["localise"] = time.perf_counter() - tic
         # inside the polygon the robot neither crossed an exit nor left elsewhere (distance 0)
         inside = bool(shapely.contains_xy(self._builders[self.current].polygon, pose[0], pose[1]))
+        if inside:
+            self._been_inside = True
         crossed = self._crossed_exit(prev, pose, inside)
-        if crossed is None and not inside:
+        if crossed is None and not inside and self._may_leave_elsewhere(pose):
             crossed = self._left_elsewhere(prev, pose)
         if crossed is not None:
-            return self._leave_through(scan.t, crossed[0], crossed[1], pose, pts)
+            events = self._leave_through(scan.t, crossed[0], crossed[1], pose, pts)
+            self._entered_at, self._been_inside = self.pose[:2], False
+            return events
         if self._is_viewpoint(pose):
             return self._add_view(scan.t, pts, pose)
         return []
@@ -428,6 +436,16 @@ class Mapper:
             self._armed = True
             return None
         return e.id
+
+    def _may_leave_elsewhere(self, pose: Pose) -> bool:
+        """Whether the robot, outside the current ASR, may leave it elsewhere than through an exit:
+        once it has been inside the polygon since it came in, or has moved ``leave_settle`` from
+        where it came in. A pose handed over on re-entry can land outside a drifted ASR, beside
+        the exit it came through; leaving at once would bounce it between the two every scan."""
+        if self._been_inside or self._entered_at is None:
+            return True
+        moved = math.hypot(pose[0] - self._entered_at[0], pose[1] - self._entered_at[1])
+        return moved > self.params.leave_settle
 
     def _left_elsewhere(self, prev: Pose, pose: Pose) -> tuple[Exit, tuple[float, float]] | None:
         """When the robot is more than ``leave_margin`` outside the current ASR without having crossed

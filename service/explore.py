@@ -77,6 +77,11 @@ class ExploreParams:
     stage_distance: float = 0.8
     #: m. ... to this far beyond its midpoint.
     through_distance: float = 1.0
+    #: m, s. An exit is given up once the robot, facing the point beyond it, sees a surface on
+    #: the straight way there less than ``through_past`` beyond the exit line, for this long
+    #: (the mapper sees a crossing only once the robot is outside the ASR).
+    through_past: float = 0.3
+    through_blocked_time: float = 1.0
     #: s. After reaching the far side, the mapper has this long to report the crossing.
     crossing_grace: float = 3.0
     #: m. After a crossing the robot carries on to the point beyond the exit (when it is at least
@@ -139,6 +144,14 @@ class ExploreParams:
     #: into the same room.
     known_depths: tuple[float, ...] = (0.5, 1.0, 1.5)
     known_margin: float = 0.2
+    #: Or: at least this fraction of the strip beyond the exit (its width, ``max(known_depths)``
+    #: deep) lies inside the other ASRs' polygons (global frame, as they are). A long exit across an
+    #: open-plan room, or one beside a seam between two ASRs, has points outside any one ASR shrunk
+    #: by ``known_margin`` although every bit of the space beyond it is mapped.
+    known_cover: float = 0.7
+    #: m. An unknown region needs no look when the space round it (this far from its midpoint,
+    #: outside the ASR) is ``known_cover`` inside other ASRs.
+    known_radius: float = 0.75
     #: m, robot frame. Robot front (from the turning centre), half width, laser position.
     front: float = 0.210
     half_width: float = 0.2125
@@ -229,8 +242,6 @@ class Memory:
     failed_exits: set[tuple[int, str]] = field(default_factory=set)
     failed_at: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
     retries: int = 0
-    #: Far exits (``goto``) that could not be reached: (asr, exit id, midpoint); never retried.
-    unreachable: list[tuple[int, str, tuple[float, float] | None]] = field(default_factory=list)
 
 
 def unknown_runs(asr: ASR) -> list[tuple[np.ndarray, float]]:
@@ -330,6 +341,7 @@ class Planner:
         self._pending: list[tuple[float, float]] = []
         self._known_key: tuple | None = None
         self._known: list[tuple[int, shapely.Geometry]] = []
+        self._polygons: list[tuple[int, shapely.Geometry]] = []
 
     # -- bookkeeping ---------------------------------------------------------------------------
     def looked_at(self, asr: int, point: tuple[float, float]) -> None:
@@ -357,6 +369,31 @@ class Planner:
             d = math.hypot(m[0] - pose[0], m[1] - pose[1])
             bearing = wrap(math.atan2(m[1] - pose[1], m[0] - pose[0]) - pose[2])
             if d < self.p.look_distance and abs(bearing) < self.p.view_half_angle:
+                self.looked_at(asr.id, m)
+                n += 1
+        return n
+
+    def retire_known_unknown(self, view: MapView, asr: ASR) -> int:
+        """Mark the pending unknown regions of ``asr`` whose space is already inside other ASRs as
+        looked at; returns how many. The disc of ``known_radius`` round a region's midpoint, less
+        ``asr`` itself, must be at least ``known_cover`` inside the other ASRs' polygons (global
+        frame): an ASR made on a return to mapped space (a gap between tables crossed, a revisit
+        not recognised) need not look round again at what the map already holds."""
+        pending = self.pending_unknown(asr)
+        if not pending or self.p.known_cover > 1.0 or len(asr.boundary) < 3:
+            return 0
+        polygons = self._known_polygons(view)
+        own = next((g for i, g in polygons if i == asr.id), None)
+        n = 0
+        for m in pending:
+            q = transform_points(asr.origin, np.array([m]))[0]
+            disc = shapely.Point(q).buffer(self.p.known_radius)
+            if own is not None:
+                disc = disc.difference(own)
+            if disc.area <= 1e-6:
+                continue
+            others = [g for i, g in polygons if i != asr.id and g.intersects(disc)]
+            if others and disc.intersection(shapely.union_all(others)).area >= self.p.known_cover * disc.area:
                 self.looked_at(asr.id, m)
                 n += 1
         return n
@@ -412,23 +449,41 @@ class Planner:
             pts = pts[~inside]
             if not len(pts):
                 return True
-        return False
+        if self.p.known_cover > 1.0:
+            return False
+        a, b = np.asarray(ex.a, dtype=float) + depth * n, np.asarray(ex.b, dtype=float) + depth * n
+        far = max(self.p.known_depths) * n
+        strip = shapely.Polygon(transform_points(asr.origin, np.array([a, b, b + far, a + far])))
+        if strip.area <= 0.0:
+            return False
+        others = [g for i, g in self._known_polygons(view) if i != asr.id and g.intersects(strip)]
+        if not others:
+            return False
+        covered = strip.intersection(shapely.union_all(others)).area
+        return covered >= self.p.known_cover * strip.area
+
+    def _known_polygons(self, view: MapView) -> list[tuple[int, shapely.Geometry]]:
+        """Every ASR's polygon in the global frame, as it is (cached like :meth:`_known_areas`)."""
+        self._known_areas(view)
+        return self._polygons
 
     def _known_areas(self, view: MapView) -> list[tuple[int, shapely.Geometry]]:
         """Every ASR's polygon in the global frame, shrunk by ``known_margin`` (cached while the ASRs'
         boundaries and origins stay the same)."""
         key = tuple((a.id, id(a.boundary), len(a.boundary), tuple(a.origin)) for a in view.asrs.values())
         if self._known_key != key:
-            areas = []
+            areas, polygons = [], []
             for a in view.asrs.values():
                 if len(a.boundary) < 3:
                     continue
-                poly = shapely.make_valid(shapely.Polygon(transform_points(a.origin, np.asarray(a.boundary))))
-                poly = poly.buffer(-self.p.known_margin)
+                ring = transform_points(a.origin, np.asarray(a.boundary))
+                whole = shapely.make_valid(shapely.Polygon(ring))
+                polygons.append((a.id, whole))
+                poly = whole.buffer(-self.p.known_margin)
                 if not poly.is_empty:
                     shapely.prepare(poly)
                     areas.append((a.id, poly))
-            self._known_key, self._known = key, areas
+            self._known_key, self._known, self._polygons = key, areas, polygons
         return self._known
 
     def unexplored_exits(self, view: MapView, asr: ASR, edges: dict | None = None) -> list[Exit]:
@@ -444,6 +499,7 @@ class Planner:
         asr = view.asrs[view.current]
         here = (view.pose[0], view.pose[1])
         free = _free_space(asr, self.p.clearance)
+        self.retire_known_unknown(view, asr)
         pending = self.pending_unknown(asr)
         if pending:
             m = min(pending, key=lambda q: math.hypot(q[0] - here[0], q[1] - here[1]))
@@ -464,8 +520,6 @@ class Planner:
                          len(self.memory.failed_exits), self.memory.retries, self.p.retries)
                 self.memory.failed_exits.clear()
                 self.memory.failed_at.clear()
-                for a, e, m in self.memory.unreachable:  # a far exit not reached stays so
-                    self.failed(a, e, m)
                 return self.plan(view)
             return Goal("done", asr.id)
         hops, exit_id = path
@@ -574,18 +628,24 @@ def _edges(view: MapView, borrow: bool = False) -> dict[tuple[int, str], int]:
     duplicate ASR (the same space as its original, method.md §5.5) may leave through its
     original's exits, borrowed likewise."""
     edges: dict[tuple[int, str], int] = {}
+    ids: dict[int, set[str]] = {}
     for a in view.asrs.values():
+        ids[a.id] = {e.id for e in a.exits}
         for e in a.exits:
             if e.to is not None:
                 edges[(a.id, e.id)] = e.to
     for ln in view.links:
+        # An exit the ASR no longer has (the mapper renumbers the exits of an ASR that grows) is
+        # as good as missing: the other side's is borrowed.
+        here = ln.exit is not None and ln.exit in ids.get(ln.src, ())
+        there = ln.via is not None and ln.via in ids.get(ln.dst, ())
         if ln.exit is not None:
             edges.setdefault((ln.src, ln.exit), ln.dst)
-        elif borrow and ln.via is not None:
+        if borrow and not here and there:
             edges.setdefault((ln.src, f"{BORROWED}{ln.dst}|{ln.via}"), ln.dst)
         if not ln.oneway and ln.via is not None:
             edges.setdefault((ln.dst, ln.via), ln.src)
-        elif not ln.oneway and borrow and ln.exit is not None:
+        if not ln.oneway and borrow and not there and here:
             edges.setdefault((ln.dst, f"{BORROWED}{ln.src}|{ln.exit}"), ln.src)
     if borrow:
         for a in view.asrs.values():
@@ -731,6 +791,7 @@ class Explorer:
         self._recovery_cmd = (0.0, 0.0)
         self._escaping = self._skipped = False
         self._blocked_since: float | None = None
+        self._through_blocked_since: float | None = None
         self._memory: deque[tuple[float, Pose, np.ndarray]] = deque()
         self._near = np.zeros((0, 2))
         self._last: Command | None = None
@@ -757,6 +818,7 @@ class Explorer:
         self._best = math.inf
         self._best_t = t
         self._reached_t = None
+        self._through_blocked_since = None
         if goal.kind in ("unknown", "exit", "backtrack", "goto"):
             self.counts["goals"] += 1
             kind = {"unknown": "unknown", "exit": "exits", "backtrack": "backtracks", "goto": "backtracks"}
@@ -768,10 +830,13 @@ class Explorer:
         if goal.kind not in ("exit", "backtrack", "goto") or goal.exit is None or goal.asr is None:
             return False
         key = (self.planner.memory.retries, goal.path[-1] if goal.kind == "goto" else goal.asr, goal.exit)
-        n, last = self._attempts.get(key, (0, -math.inf))
-        if self._t - last >= self.p.attempt_spacing:
-            n += 1  # choices in quick succession (an unknown region came and went) are one attempt
-        self._attempts[key] = (n, self._t)
+        n, start = self._attempts.get(key, (0, -math.inf))
+        # Choices in quick succession (an unknown region came and went) are one attempt; an attempt
+        # is timed from its first choice, or a chain of choices (the mapper flipping between two
+        # ASRs every second) would be one attempt for ever.
+        if self._t - start >= self.p.attempt_spacing:
+            n, start = n + 1, self._t
+        self._attempts[key] = (n, start)
         return n > self.p.max_attempts
 
     def _give_up(self, why: str) -> None:
@@ -784,7 +849,6 @@ class Explorer:
             self.planner.looked_at(g.asr, g.look_at)
         elif g.kind == "goto" and g.exit is not None:
             self.planner.failed(g.path[-1], g.exit, g.exit_mid)  # the far exit, in its ASR's frame
-            self.planner.memory.unreachable.append((g.path[-1], g.exit, g.exit_mid))
         elif g.exit is not None and g.asr is not None:
             self.planner.failed(g.asr, g.exit, g.exit_mid)
         self.goal = None
@@ -873,6 +937,7 @@ class Explorer:
         self._view = view
         if view.current in view.asrs:
             self.planner.observe(view.asrs[view.current], view.pose)
+            self.planner.retire_known_unknown(view, view.asrs[view.current])
         if not self._still_valid(view):
             goal = self._settle(view) or self.planner.plan(view)
             if self._too_often(goal):
@@ -956,8 +1021,31 @@ class Explorer:
         # Doorways leave ~0.24 m a side: steer with a tight margin so the jambs do not repel the robot
         # (only near the exit: a far one, ``goto``, is driven to with the usual margin).
         near = dist < self.p.stage_distance + self.p.through_distance + 0.5
+        if near and self._no_way_through(g.through, pose, points, t):  # type: ignore[arg-type]
+            self._give_up("a surface across the way through")
+            return Command(0.0, 0.0, f"no way through exit {g.exit}")
         return self._drive_to(g.through, pose, points, t, f"{what} {g.exit}",  # type: ignore[arg-type]
                               margin=0.02 if near else None)
+
+    def _no_way_through(self, through: tuple[float, float], pose: Pose, points: np.ndarray, t: float) -> bool:
+        """Whether the scan shows a surface across the straight way to ``through`` (ASR frame) short
+        of ``through_past`` beyond the exit, for ``through_blocked_time`` s while the robot faces it:
+        an exit that is no gap (a chord from a door jamb diagonally across a corridor, its far side
+        behind a wall) is given up at once instead of after ``stuck_time`` against the wall."""
+        p = self.p
+        dist = math.hypot(through[0] - pose[0], through[1] - pose[1])
+        bearing = wrap(math.atan2(through[1] - pose[1], through[0] - pose[0]) - pose[2])
+        if abs(bearing) > p.face_tol or not len(points):
+            self._through_blocked_since = None
+            return False
+        need = max(p.through_past, dist - p.through_distance + p.through_past)
+        free = float(free_distance(points, np.array([bearing]), p, 0.0)[0]) + p.front
+        if free >= need:
+            self._through_blocked_since = None
+            return False
+        if self._through_blocked_since is None:
+            self._through_blocked_since = t
+        return t - self._through_blocked_since >= p.through_blocked_time
 
     def _rotate(self, bearing: float, points: np.ndarray, t: float, status: str,
                 track: bool = True) -> Command:
