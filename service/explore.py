@@ -82,6 +82,12 @@ class ExploreParams:
     #: (the mapper sees a crossing only once the robot is outside the ASR).
     through_past: float = 0.3
     through_blocked_time: float = 1.0
+    #: m, m, count. An exit is shut when this many scan returns lie in the strip ``shut_depth``
+    #: deep just behind it on its normal, ``shut_width`` wide (the robot's width less margins:
+    #: a jamb of a doorway approached off its axis stays outside).
+    shut_depth: float = 0.3
+    shut_width: float = 0.3
+    shut_points: int = 3
     #: s. After reaching the far side, the mapper has this long to report the crossing.
     crossing_grace: float = 3.0
     #: m. After a crossing the robot carries on to the point beyond the exit (when it is at least
@@ -242,6 +248,9 @@ class Memory:
     failed_exits: set[tuple[int, str]] = field(default_factory=set)
     failed_at: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
     retries: int = 0
+    #: Exits seen shut (a surface right behind them, :meth:`Planner.shut_exits`), by midpoint per
+    #: ASR (its frame); not retried: a wall does not move.
+    shut_at: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
 
 
 def unknown_runs(asr: ASR) -> list[tuple[np.ndarray, float]]:
@@ -342,6 +351,9 @@ class Planner:
         self._known_key: tuple | None = None
         self._known: list[tuple[int, shapely.Geometry]] = []
         self._polygons: list[tuple[int, shapely.Geometry]] = []
+        self._geometry_cache: dict[tuple, tuple[np.ndarray, float]] = {}
+        self._beyond_key: tuple | None = None
+        self._beyond: dict[tuple, bool] = {}
 
     # -- bookkeeping ---------------------------------------------------------------------------
     def looked_at(self, asr: int, point: tuple[float, float]) -> None:
@@ -355,9 +367,38 @@ class Planner:
     def _failed(self, asr: ASR, ex: Exit) -> bool:
         if (asr.id, ex.id) in self.memory.failed_exits:
             return True
-        near = self.memory.failed_at.get(asr.id, ())
         m = ex.midpoint
+        near = list(self.memory.failed_at.get(asr.id, ())) + list(self.memory.shut_at.get(asr.id, ()))
         return any(math.hypot(m[0] - q[0], m[1] - q[1]) < 0.5 for q in near)
+
+    def shut_exits(self, view: MapView, points: np.ndarray) -> int:
+        """Mark the unexplored exits of the current ASR that the scan ``points`` (robot frame, the
+        robot at ``view.pose``) shows shut as explored; returns how many. Shut: at least
+        ``shut_points`` returns lie in the strip just behind the exit on its normal, where the robot
+        would drive through (``shut_depth`` deep beyond the ASR polygon, ``shut_width`` wide): a
+        wall seen along its length through gaps in its fit, a table right behind a chord between
+        two of its legs. Seen from afar, such an exit costs no trip."""
+        asr = view.asrs.get(view.current) if view.current is not None else None
+        if asr is None or len(points) < self.p.shut_points:
+            return 0
+        pts = transform_points(view.pose, points)  # into the ASR's frame
+        n_shut = 0
+        for ex in asr.exits:
+            if ex.to is not None or self._failed(asr, ex):
+                continue
+            n, depth = self._geometry(asr, ex)
+            mid = np.asarray(ex.midpoint, dtype=float)
+            if depth > 0.0:
+                continue  # a run of exit edges that bends: its chord's normal says little
+            rel = pts - mid
+            along = rel @ n
+            across = rel @ np.array([-n[1], n[0]])
+            inside = (along > -0.05) & (along < self.p.shut_depth) & (np.abs(across) < self.p.shut_width / 2)
+            if int(inside.sum()) >= self.p.shut_points:
+                self.memory.shut_at.setdefault(asr.id, []).append((float(mid[0]), float(mid[1])))
+                log.info("exploration: exit %s of ASR %s is shut (a surface right behind it)", ex.id, asr.id)
+                n_shut += 1
+        return n_shut
 
     # -- queries -------------------------------------------------------------------------------
     def observe(self, asr: ASR, pose: Pose) -> int:
@@ -434,13 +475,34 @@ class Planner:
                     return True
         return False
 
+    def _geometry(self, asr: ASR, ex: Exit) -> tuple[np.ndarray, float]:
+        """``exit_normal`` and ``_depth_beyond`` of ``ex`` (cached while the ASR's boundary stays)."""
+        key = (asr.id, id(asr.boundary), len(asr.boundary), ex.id, ex.a, ex.b)
+        got = self._geometry_cache.get(key)
+        if got is None:
+            if len(self._geometry_cache) > 4096:
+                self._geometry_cache.clear()
+            n = exit_normal(asr, ex)
+            got = (n, _depth_beyond(asr, np.asarray(ex.midpoint, dtype=float), n))
+            self._geometry_cache[key] = got
+        return got
+
     def _known_beyond(self, view: MapView, asr: ASR, ex: Exit) -> bool:
-        """Whether the space beyond ``ex`` is inside ASRs other than ``asr`` (see ``known_depths``)."""
+        """Whether the space beyond ``ex`` is inside ASRs other than ``asr`` (see ``known_depths``);
+        cached while the ASRs stay the same."""
         if not self.p.known_depths:
             return False
-        n = exit_normal(asr, ex)
+        self._known_areas(view)
+        key = (self._known_key, asr.id, ex.id, ex.a, ex.b)
+        if self._beyond_key != self._known_key:
+            self._beyond_key, self._beyond = self._known_key, {}
+        if key not in self._beyond:
+            self._beyond[key] = self._known_beyond_now(view, asr, ex)
+        return self._beyond[key]
+
+    def _known_beyond_now(self, view: MapView, asr: ASR, ex: Exit) -> bool:
+        n, depth = self._geometry(asr, ex)
         mid = np.asarray(ex.midpoint, dtype=float)
-        depth = _depth_beyond(asr, mid, n)
         pts = transform_points(asr.origin, np.array([mid + (depth + d) * n for d in self.p.known_depths]))
         for other in self._known_areas(view):
             if other[0] == asr.id:
@@ -938,6 +1000,7 @@ class Explorer:
         if view.current in view.asrs:
             self.planner.observe(view.asrs[view.current], view.pose)
             self.planner.retire_known_unknown(view, view.asrs[view.current])
+            self.planner.shut_exits(view, points)
         if not self._still_valid(view):
             goal = self._settle(view) or self.planner.plan(view)
             if self._too_often(goal):
@@ -1039,7 +1102,9 @@ class Explorer:
             self._through_blocked_since = None
             return False
         need = max(p.through_past, dist - p.through_distance + p.through_past)
-        free = float(free_distance(points, np.array([bearing]), p, 0.0)[0]) + p.front
+        # A body narrower than the robot's: one that stopped short of the staging point, off the
+        # doorway's axis, still sees a jamb clip the straight way through a real doorway.
+        free = float(free_distance(points, np.array([bearing]), p, -0.1)[0]) + p.front
         if free >= need:
             self._through_blocked_since = None
             return False
@@ -1137,15 +1202,22 @@ class Explorer:
 
     def _map_area(self, view: MapView, asr: ASR) -> shapely.Geometry:
         """Every ASR's polygon in ``asr``'s frame, each grown by a little so that neighbours meet
-        at their common exits, as one area (cached while the ASRs stay the same)."""
+        at their common exits, as one area, less ``asr``'s own surfaces (cached while the ASRs stay
+        the same). Drifted neighbours overlap across walls; the current ASR's walls, seen in its own
+        frame, are where they are, so a path out of it leaves through its exits."""
         key = (asr.id, tuple((a.id, id(a.boundary), tuple(a.origin)) for a in view.asrs.values()))
         if self._area_key != key:
             to_here = inverse(asr.origin)
             parts = [shapely.make_valid(shapely.Polygon(transform_points(compose(to_here, a.origin),
                                                                          np.asarray(a.boundary))))
                      for a in view.asrs.values() if len(a.boundary) >= 3]
-            self._area = shapely.union_all([q.buffer(0.05) for q in parts]) if parts else shapely.Polygon()
-            self._area_key = key
+            area = shapely.union_all([q.buffer(0.05) for q in parts]) if parts else shapely.Polygon()
+            b = np.asarray(asr.boundary, dtype=float)
+            walls = [shapely.LineString([b[i], b[(i + 1) % len(b)]])
+                     for i, e in enumerate(asr.edges) if e == "surface" and len(b) >= 3]
+            if walls:
+                area = area.difference(shapely.union_all(walls).buffer(0.05))
+            self._area, self._area_key = area, key
         return self._area
 
     def _off_path(self, pose: Pose) -> bool:
