@@ -417,13 +417,18 @@ class Mapper:
         self._settle_labels()  # outside: the exits are needed, and leaving needs the last check done
         if not b.asr.exits:
             return None
+        first = None
         for e in b.asr.exits:
             if e.id == ignore:
                 continue
             hit, at = _segments_cross(prev, pose, e.a, e.b)
             if hit:
-                return e, at
-        return None
+                # Of exits crossed in one step (an open-plan ASR's chords overlap), the one known to
+                # lead somewhere: another would make a new ASR of known space.
+                if self._gm.lookup(self.current, e.id) is not None:
+                    return e, at
+                first = first or (e, at)
+        return first
 
     def _entry_to_ignore(self, b: AsrBuilder, pose: Pose) -> str | None:
         """The id of the exit just entered through while the robot is still near it (hysteresis)."""

@@ -901,18 +901,22 @@ class Explorer:
         self._attempts[key] = (n, start)
         return n > self.p.max_attempts
 
-    def _give_up(self, why: str) -> None:
+    def _give_up(self, why: str, shut: bool = False) -> None:
+        """Give the goal up; ``shut``: the way through its exit was seen shut, which no retry changes
+        (a link travelled back is only failed for the round: the link is real)."""
         g = self.goal
         if g is None:
             return
         self.counts["failed"] += 1
         log.info("exploration: gave up %s %s in ASR %s (%s)", g.kind, g.exit or g.look_at, g.asr, why)
+        where = g.path[-1] if g.kind == "goto" else g.asr  # a far exit is in its ASR's frame
         if g.kind == "unknown" and g.look_at is not None and g.asr is not None:
             self.planner.looked_at(g.asr, g.look_at)
-        elif g.kind == "goto" and g.exit is not None:
-            self.planner.failed(g.path[-1], g.exit, g.exit_mid)  # the far exit, in its ASR's frame
-        elif g.exit is not None and g.asr is not None:
-            self.planner.failed(g.asr, g.exit, g.exit_mid)
+        elif shut and g.kind in ("exit", "goto") and g.exit_mid is not None and where is not None:
+            self.planner.memory.shut_at.setdefault(where, []).append(
+                (float(g.exit_mid[0]), float(g.exit_mid[1])))
+        elif g.exit is not None and where is not None:
+            self.planner.failed(where, g.exit, g.exit_mid)
         self.goal = None
 
     def _still_valid(self, view: MapView) -> bool:
@@ -1085,7 +1089,7 @@ class Explorer:
         # (only near the exit: a far one, ``goto``, is driven to with the usual margin).
         near = dist < self.p.stage_distance + self.p.through_distance + 0.5
         if near and self._no_way_through(g.through, pose, points, t):  # type: ignore[arg-type]
-            self._give_up("a surface across the way through")
+            self._give_up("a surface across the way through", shut=True)
             return Command(0.0, 0.0, f"no way through exit {g.exit}")
         return self._drive_to(g.through, pose, points, t, f"{what} {g.exit}",  # type: ignore[arg-type]
                               margin=0.02 if near else None)
