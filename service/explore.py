@@ -6,16 +6,19 @@ enclosure is complete; then it takes the current ASR's *largest unexplored exit*
 when every exit of the current ASR is explored it *backtracks* along the topological map to the
 nearest ASR (fewest metres between centres in the global frame) with an unexplored exit; when the
 topological map offers no way there (the way out failed), it heads across the current ASR for the
-nearest unexplored exit of any ASR in the global frame (``goto``; one that cannot be reached is
-never retried); when none is left it is *done*. An exit is explored when it leads somewhere
-(``to`` is set, or a link starts from it), when crossing it failed, when the space beyond it is
-already inside other ASRs (``known_depths``: in an open-plan room every gap between tables is an
+nearest unexplored exit of any ASR in the global frame (``goto``); when none is left, the exits
+that failed are retried (``retries`` rounds), then it is *done*. An exit is explored when it leads
+somewhere (``to`` is set, or a link starts from it; a link naming an exit the ASR no longer has is
+travelled through the other side's), when crossing it failed, when it was seen shut (a surface
+right behind it in a scan: :meth:`Planner.shut_exits`), when the space beyond it is already inside
+other ASRs (``known_depths``, ``known_cover``: in an open-plan room every gap between tables is an
 exit into the same room), or, in a duplicate ASR (method.md §5.5), when the matched ASR has an
 explored exit at the same place in the global frame: the duplicate's space is known.
 An unknown region is a run of consecutive ``unknown`` boundary edges at least ``min_unknown`` long;
 it is looked at once, from the nearest point of the ASR shrunk by ``clearance``, then remembered
 (in the ASR's own frame, which never moves) so that regions that stay unknown (a max-range cut of a
-long hall, space behind furniture) do not hold exploration up.
+long hall, space behind furniture) do not hold exploration up; one whose space other ASRs already
+hold (``known_radius``) needs no look.
 
 **Controller** (:class:`Explorer`): turn to the target, then drive, steering to the free heading
 nearest the target (or, when the straight line to it leaves the ASR, nearest a point ahead on a
@@ -23,8 +26,9 @@ path planned on a grid inside the ASR polygon) from the latest scan; a laser saf
 forward motion while a scan point in the robot's path is closer to the laser than
 ``stop_distance``); stuck detection (no progress towards the goal for ``stuck_time`` s) and
 recovery (back off or creep forward, turn to the most open side, give the goal up and plan
-again); an exit goal chosen in more than ``max_attempts``
-separate attempts is given up (the robot goes round a loop).
+again); an exit whose straight way through the scan shows blocked just beyond it is given up at
+once; an exit goal chosen in more than ``max_attempts`` separate attempts (each timed from its first
+choice) is given up (the robot goes round a loop, or the mapper flips between two ASRs).
 
 Frames: targets and the robot pose are in the current ASR's frame (m, m, rad); scan points in the
 robot frame (x forward, y left); velocities out are ``v`` (m/s, forward) and ``w`` (rad/s,
@@ -901,22 +905,18 @@ class Explorer:
         self._attempts[key] = (n, start)
         return n > self.p.max_attempts
 
-    def _give_up(self, why: str, shut: bool = False) -> None:
-        """Give the goal up; ``shut``: the way through its exit was seen shut, which no retry changes
-        (a link travelled back is only failed for the round: the link is real)."""
+    def _give_up(self, why: str) -> None:
         g = self.goal
         if g is None:
             return
         self.counts["failed"] += 1
         log.info("exploration: gave up %s %s in ASR %s (%s)", g.kind, g.exit or g.look_at, g.asr, why)
-        where = g.path[-1] if g.kind == "goto" else g.asr  # a far exit is in its ASR's frame
         if g.kind == "unknown" and g.look_at is not None and g.asr is not None:
             self.planner.looked_at(g.asr, g.look_at)
-        elif shut and g.kind in ("exit", "goto") and g.exit_mid is not None and where is not None:
-            self.planner.memory.shut_at.setdefault(where, []).append(
-                (float(g.exit_mid[0]), float(g.exit_mid[1])))
-        elif g.exit is not None and where is not None:
-            self.planner.failed(where, g.exit, g.exit_mid)
+        elif g.kind == "goto" and g.exit is not None:
+            self.planner.failed(g.path[-1], g.exit, g.exit_mid)  # the far exit, in its ASR's frame
+        elif g.exit is not None and g.asr is not None:
+            self.planner.failed(g.asr, g.exit, g.exit_mid)
         self.goal = None
 
     def _still_valid(self, view: MapView) -> bool:
@@ -1089,7 +1089,7 @@ class Explorer:
         # (only near the exit: a far one, ``goto``, is driven to with the usual margin).
         near = dist < self.p.stage_distance + self.p.through_distance + 0.5
         if near and self._no_way_through(g.through, pose, points, t):  # type: ignore[arg-type]
-            self._give_up("a surface across the way through", shut=True)
+            self._give_up("a surface across the way through")
             return Command(0.0, 0.0, f"no way through exit {g.exit}")
         return self._drive_to(g.through, pose, points, t, f"{what} {g.exit}",  # type: ignore[arg-type]
                               margin=0.02 if near else None)
