@@ -139,6 +139,10 @@ class Mapper:
         # from it for a crossing of that exit to count again.
         self._entry: tuple[int, str | None] | None = None
         self._armed = True
+        # Where (current ASR frame) the robot came into the current ASR, and whether it has been
+        # inside its polygon since (see _may_leave_elsewhere).
+        self._entered_at: tuple[float, float] | None = None
+        self._been_inside = True
         # After from_document: the ASR and pose (its frame) the robot is assumed to restart at.
         self._resume: tuple[int, Pose] | None = None
 
@@ -269,15 +273,19 @@ class Mapper:
         # inside the polygon the robot neither crossed an exit nor left elsewhere (distance 0)
         b = self._builders[self.current]
         inside = bool(shapely.contains_xy(b.polygon, pose[0], pose[1]))
+        if inside:
+            self._been_inside = True
         sliver = self._is_sliver(b)
         crossed = None
         held = sliver and (inside or b.polygon.distance(shapely.Point(pose[:2])) <= self.params.sliver_leave)
         if not held:  # a sliver near the robot is not left: its next views grow it
             crossed = self._crossed_exit(prev, pose, inside)
-            if crossed is None and not inside:
+            if crossed is None and not inside and self._may_leave_elsewhere(pose):
                 crossed = self._left_elsewhere(prev, pose)
         if crossed is not None:
-            return self._leave_through(scan.t, crossed[0], crossed[1], pose, pts)
+            events = self._leave_through(scan.t, crossed[0], crossed[1], pose, pts)
+            self._entered_at, self._been_inside = self.pose[:2], False
+            return events
         if sliver or self._is_viewpoint(pose):
             return self._add_view(scan.t, pts, pose)
         return []
@@ -427,13 +435,18 @@ class Mapper:
         self._settle_labels()  # outside: the exits are needed, and leaving needs the last check done
         if not b.asr.exits:
             return None
+        first = None
         for e in b.asr.exits:
             if e.id == ignore:
                 continue
             hit, at = _segments_cross(prev, pose, e.a, e.b)
             if hit:
-                return e, at
-        return None
+                # Of exits crossed in one step (an open-plan ASR's chords overlap), the one known to
+                # lead somewhere: another would make a new ASR of known space.
+                if self._gm.lookup(self.current, e.id) is not None:
+                    return e, at
+                first = first or (e, at)
+        return first
 
     def _entry_to_ignore(self, b: AsrBuilder, pose: Pose) -> str | None:
         """The id of the exit just entered through while the robot is still near it (hysteresis)."""
@@ -446,6 +459,16 @@ class Mapper:
             self._armed = True
             return None
         return e.id
+
+    def _may_leave_elsewhere(self, pose: Pose) -> bool:
+        """Whether the robot, outside the current ASR, may leave it elsewhere than through an exit:
+        once it has been inside the polygon since it came in, or has moved ``leave_settle`` from
+        where it came in. A pose handed over on re-entry can land outside a drifted ASR, beside
+        the exit it came through; leaving at once would bounce it between the two every scan."""
+        if self._been_inside or self._entered_at is None:
+            return True
+        moved = math.hypot(pose[0] - self._entered_at[0], pose[1] - self._entered_at[1])
+        return moved > self.params.leave_settle
 
     def _left_elsewhere(self, prev: Pose, pose: Pose) -> tuple[Exit, tuple[float, float]] | None:
         """When the robot is more than ``leave_margin`` outside the current ASR without having crossed

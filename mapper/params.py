@@ -80,6 +80,10 @@ class MapperParams:
     #: m. The robot has left its ASR, even without crossing an exit, once it is this far outside
     #: the polygon: half a passage width, beyond localisation jitter at the boundary.
     leave_margin: float = 0.30
+    #: m. ... but right after entering an ASR only once it has been inside the polygon, or has
+    #: moved this far from where it came in (a pose handed over into a drifted ASR can land just
+    #: outside it; leaving again at once bounces the robot between two ASRs every scan).
+    leave_settle: float = 1.0
     #: m². An ASR smaller than this is a *sliver*: a first view taken on a doorway, cut off by the
     #: doorway's own exit just ahead. A sliver's exits neither gate later views nor are left
     #: through, and each scan is a view, until the views grow it into the room beyond (or the

@@ -6,16 +6,19 @@ enclosure is complete; then it takes the current ASR's *largest unexplored exit*
 when every exit of the current ASR is explored it *backtracks* along the topological map to the
 nearest ASR (fewest metres between centres in the global frame) with an unexplored exit; when the
 topological map offers no way there (the way out failed), it heads across the current ASR for the
-nearest unexplored exit of any ASR in the global frame (``goto``; one that cannot be reached is
-never retried); when none is left it is *done*. An exit is explored when it leads somewhere
-(``to`` is set, or a link starts from it), when crossing it failed, when the space beyond it is
-already inside other ASRs (``known_depths``: in an open-plan room every gap between tables is an
+nearest unexplored exit of any ASR in the global frame (``goto``); when none is left, the exits
+that failed are retried (``retries`` rounds), then it is *done*. An exit is explored when it leads
+somewhere (``to`` is set, or a link starts from it; a link naming an exit the ASR no longer has is
+travelled through the other side's), when crossing it failed, when it was seen shut (a surface
+right behind it in a scan: :meth:`Planner.shut_exits`), when the space beyond it is already inside
+other ASRs (``known_depths``, ``known_cover``: in an open-plan room every gap between tables is an
 exit into the same room), or, in a duplicate ASR (method.md §5.5), when the matched ASR has an
 explored exit at the same place in the global frame: the duplicate's space is known.
 An unknown region is a run of consecutive ``unknown`` boundary edges at least ``min_unknown`` long;
 it is looked at once, from the nearest point of the ASR shrunk by ``clearance``, then remembered
 (in the ASR's own frame, which never moves) so that regions that stay unknown (a max-range cut of a
-long hall, space behind furniture) do not hold exploration up.
+long hall, space behind furniture) do not hold exploration up; one whose space other ASRs already
+hold (``known_radius``) needs no look.
 
 **Controller** (:class:`Explorer`): turn to the target, then drive, steering to the free heading
 nearest the target (or, when the straight line to it leaves the ASR, nearest a point ahead on a
@@ -23,8 +26,9 @@ path planned on a grid inside the ASR polygon) from the latest scan; a laser saf
 forward motion while a scan point in the robot's path is closer to the laser than
 ``stop_distance``); stuck detection (no progress towards the goal for ``stuck_time`` s) and
 recovery (back off or creep forward, turn to the most open side, give the goal up and plan
-again); an exit goal chosen in more than ``max_attempts``
-separate attempts is given up (the robot goes round a loop).
+again); an exit whose straight way through the scan shows blocked just beyond it is given up at
+once; an exit goal chosen in more than ``max_attempts`` separate attempts (each timed from its first
+choice) is given up (the robot goes round a loop, or the mapper flips between two ASRs).
 
 Frames: targets and the robot pose are in the current ASR's frame (m, m, rad); scan points in the
 robot frame (x forward, y left); velocities out are ``v`` (m/s, forward) and ``w`` (rad/s,
@@ -77,6 +81,17 @@ class ExploreParams:
     stage_distance: float = 0.8
     #: m. ... to this far beyond its midpoint.
     through_distance: float = 1.0
+    #: m, s. An exit is given up once the robot, facing the point beyond it, sees a surface on
+    #: the straight way there less than ``through_past`` beyond the exit line, for this long
+    #: (the mapper sees a crossing only once the robot is outside the ASR).
+    through_past: float = 0.3
+    through_blocked_time: float = 1.0
+    #: m, m, count. An exit is shut when this many scan returns lie in the strip ``shut_depth``
+    #: deep just behind it on its normal, ``shut_width`` wide (the robot's width less margins:
+    #: a jamb of a doorway approached off its axis stays outside).
+    shut_depth: float = 0.3
+    shut_width: float = 0.3
+    shut_points: int = 3
     #: s. After reaching the far side, the mapper has this long to report the crossing.
     crossing_grace: float = 3.0
     #: m. After a crossing the robot carries on to the point beyond the exit (when it is at least
@@ -139,6 +154,14 @@ class ExploreParams:
     #: into the same room.
     known_depths: tuple[float, ...] = (0.5, 1.0, 1.5)
     known_margin: float = 0.2
+    #: Or: at least this fraction of the strip beyond the exit (its width, ``max(known_depths)``
+    #: deep) lies inside the other ASRs' polygons (global frame, as they are). A long exit across an
+    #: open-plan room, or one beside a seam between two ASRs, has points outside any one ASR shrunk
+    #: by ``known_margin`` although every bit of the space beyond it is mapped.
+    known_cover: float = 0.7
+    #: m. An unknown region needs no look when the space round it (this far from its midpoint,
+    #: outside the ASR) is ``known_cover`` inside other ASRs.
+    known_radius: float = 0.75
     #: m, robot frame. Robot front (from the turning centre), half width, laser position.
     front: float = 0.210
     half_width: float = 0.2125
@@ -229,8 +252,9 @@ class Memory:
     failed_exits: set[tuple[int, str]] = field(default_factory=set)
     failed_at: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
     retries: int = 0
-    #: Far exits (``goto``) that could not be reached: (asr, exit id, midpoint); never retried.
-    unreachable: list[tuple[int, str, tuple[float, float] | None]] = field(default_factory=list)
+    #: Exits seen shut (a surface right behind them, :meth:`Planner.shut_exits`), by midpoint per
+    #: ASR (its frame); not retried: a wall does not move.
+    shut_at: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
 
 
 def unknown_runs(asr: ASR) -> list[tuple[np.ndarray, float]]:
@@ -330,6 +354,10 @@ class Planner:
         self._pending: list[tuple[float, float]] = []
         self._known_key: tuple | None = None
         self._known: list[tuple[int, shapely.Geometry]] = []
+        self._polygons: list[tuple[int, shapely.Geometry]] = []
+        self._geometry_cache: dict[tuple, tuple[np.ndarray, float]] = {}
+        self._beyond_key: tuple | None = None
+        self._beyond: dict[tuple, bool] = {}
 
     # -- bookkeeping ---------------------------------------------------------------------------
     def looked_at(self, asr: int, point: tuple[float, float]) -> None:
@@ -343,9 +371,38 @@ class Planner:
     def _failed(self, asr: ASR, ex: Exit) -> bool:
         if (asr.id, ex.id) in self.memory.failed_exits:
             return True
-        near = self.memory.failed_at.get(asr.id, ())
         m = ex.midpoint
+        near = list(self.memory.failed_at.get(asr.id, ())) + list(self.memory.shut_at.get(asr.id, ()))
         return any(math.hypot(m[0] - q[0], m[1] - q[1]) < 0.5 for q in near)
+
+    def shut_exits(self, view: MapView, points: np.ndarray) -> int:
+        """Mark the unexplored exits of the current ASR that the scan ``points`` (robot frame, the
+        robot at ``view.pose``) shows shut as explored; returns how many. Shut: at least
+        ``shut_points`` returns lie in the strip just behind the exit on its normal, where the robot
+        would drive through (``shut_depth`` deep beyond the ASR polygon, ``shut_width`` wide): a
+        wall seen along its length through gaps in its fit, a table right behind a chord between
+        two of its legs. Seen from afar, such an exit costs no trip."""
+        asr = view.asrs.get(view.current) if view.current is not None else None
+        if asr is None or len(points) < self.p.shut_points:
+            return 0
+        pts = transform_points(view.pose, points)  # into the ASR's frame
+        n_shut = 0
+        for ex in asr.exits:
+            if ex.to is not None or self._failed(asr, ex):
+                continue
+            n, depth = self._geometry(asr, ex)
+            mid = np.asarray(ex.midpoint, dtype=float)
+            if depth > 0.0:
+                continue  # a run of exit edges that bends: its chord's normal says little
+            rel = pts - mid
+            along = rel @ n
+            across = rel @ np.array([-n[1], n[0]])
+            inside = (along > -0.05) & (along < self.p.shut_depth) & (np.abs(across) < self.p.shut_width / 2)
+            if int(inside.sum()) >= self.p.shut_points:
+                self.memory.shut_at.setdefault(asr.id, []).append((float(mid[0]), float(mid[1])))
+                log.info("exploration: exit %s of ASR %s is shut (a surface right behind it)", ex.id, asr.id)
+                n_shut += 1
+        return n_shut
 
     # -- queries -------------------------------------------------------------------------------
     def observe(self, asr: ASR, pose: Pose) -> int:
@@ -357,6 +414,31 @@ class Planner:
             d = math.hypot(m[0] - pose[0], m[1] - pose[1])
             bearing = wrap(math.atan2(m[1] - pose[1], m[0] - pose[0]) - pose[2])
             if d < self.p.look_distance and abs(bearing) < self.p.view_half_angle:
+                self.looked_at(asr.id, m)
+                n += 1
+        return n
+
+    def retire_known_unknown(self, view: MapView, asr: ASR) -> int:
+        """Mark the pending unknown regions of ``asr`` whose space is already inside other ASRs as
+        looked at; returns how many. The disc of ``known_radius`` round a region's midpoint, less
+        ``asr`` itself, must be at least ``known_cover`` inside the other ASRs' polygons (global
+        frame): an ASR made on a return to mapped space (a gap between tables crossed, a revisit
+        not recognised) need not look round again at what the map already holds."""
+        pending = self.pending_unknown(asr)
+        if not pending or self.p.known_cover > 1.0 or len(asr.boundary) < 3:
+            return 0
+        polygons = self._known_polygons(view)
+        own = next((g for i, g in polygons if i == asr.id), None)
+        n = 0
+        for m in pending:
+            q = transform_points(asr.origin, np.array([m]))[0]
+            disc = shapely.Point(q).buffer(self.p.known_radius)
+            if own is not None:
+                disc = disc.difference(own)
+            if disc.area <= 1e-6:
+                continue
+            others = [g for i, g in polygons if i != asr.id and g.intersects(disc)]
+            if others and disc.intersection(shapely.union_all(others)).area >= self.p.known_cover * disc.area:
                 self.looked_at(asr.id, m)
                 n += 1
         return n
@@ -397,13 +479,34 @@ class Planner:
                     return True
         return False
 
+    def _geometry(self, asr: ASR, ex: Exit) -> tuple[np.ndarray, float]:
+        """``exit_normal`` and ``_depth_beyond`` of ``ex`` (cached while the ASR's boundary stays)."""
+        key = (asr.id, id(asr.boundary), len(asr.boundary), ex.id, ex.a, ex.b)
+        got = self._geometry_cache.get(key)
+        if got is None:
+            if len(self._geometry_cache) > 4096:
+                self._geometry_cache.clear()
+            n = exit_normal(asr, ex)
+            got = (n, _depth_beyond(asr, np.asarray(ex.midpoint, dtype=float), n))
+            self._geometry_cache[key] = got
+        return got
+
     def _known_beyond(self, view: MapView, asr: ASR, ex: Exit) -> bool:
-        """Whether the space beyond ``ex`` is inside ASRs other than ``asr`` (see ``known_depths``)."""
+        """Whether the space beyond ``ex`` is inside ASRs other than ``asr`` (see ``known_depths``);
+        cached while the ASRs stay the same."""
         if not self.p.known_depths:
             return False
-        n = exit_normal(asr, ex)
+        self._known_areas(view)
+        key = (self._known_key, asr.id, ex.id, ex.a, ex.b)
+        if self._beyond_key != self._known_key:
+            self._beyond_key, self._beyond = self._known_key, {}
+        if key not in self._beyond:
+            self._beyond[key] = self._known_beyond_now(view, asr, ex)
+        return self._beyond[key]
+
+    def _known_beyond_now(self, view: MapView, asr: ASR, ex: Exit) -> bool:
+        n, depth = self._geometry(asr, ex)
         mid = np.asarray(ex.midpoint, dtype=float)
-        depth = _depth_beyond(asr, mid, n)
         pts = transform_points(asr.origin, np.array([mid + (depth + d) * n for d in self.p.known_depths]))
         for other in self._known_areas(view):
             if other[0] == asr.id:
@@ -412,23 +515,41 @@ class Planner:
             pts = pts[~inside]
             if not len(pts):
                 return True
-        return False
+        if self.p.known_cover > 1.0:
+            return False
+        a, b = np.asarray(ex.a, dtype=float) + depth * n, np.asarray(ex.b, dtype=float) + depth * n
+        far = max(self.p.known_depths) * n
+        strip = shapely.Polygon(transform_points(asr.origin, np.array([a, b, b + far, a + far])))
+        if strip.area <= 0.0:
+            return False
+        others = [g for i, g in self._known_polygons(view) if i != asr.id and g.intersects(strip)]
+        if not others:
+            return False
+        covered = strip.intersection(shapely.union_all(others)).area
+        return covered >= self.p.known_cover * strip.area
+
+    def _known_polygons(self, view: MapView) -> list[tuple[int, shapely.Geometry]]:
+        """Every ASR's polygon in the global frame, as it is (cached like :meth:`_known_areas`)."""
+        self._known_areas(view)
+        return self._polygons
 
     def _known_areas(self, view: MapView) -> list[tuple[int, shapely.Geometry]]:
         """Every ASR's polygon in the global frame, shrunk by ``known_margin`` (cached while the ASRs'
         boundaries and origins stay the same)."""
         key = tuple((a.id, id(a.boundary), len(a.boundary), tuple(a.origin)) for a in view.asrs.values())
         if self._known_key != key:
-            areas = []
+            areas, polygons = [], []
             for a in view.asrs.values():
                 if len(a.boundary) < 3:
                     continue
-                poly = shapely.make_valid(shapely.Polygon(transform_points(a.origin, np.asarray(a.boundary))))
-                poly = poly.buffer(-self.p.known_margin)
+                ring = transform_points(a.origin, np.asarray(a.boundary))
+                whole = shapely.make_valid(shapely.Polygon(ring))
+                polygons.append((a.id, whole))
+                poly = whole.buffer(-self.p.known_margin)
                 if not poly.is_empty:
                     shapely.prepare(poly)
                     areas.append((a.id, poly))
-            self._known_key, self._known = key, areas
+            self._known_key, self._known, self._polygons = key, areas, polygons
         return self._known
 
     def unexplored_exits(self, view: MapView, asr: ASR, edges: dict | None = None) -> list[Exit]:
@@ -444,6 +565,7 @@ class Planner:
         asr = view.asrs[view.current]
         here = (view.pose[0], view.pose[1])
         free = _free_space(asr, self.p.clearance)
+        self.retire_known_unknown(view, asr)
         pending = self.pending_unknown(asr)
         if pending:
             m = min(pending, key=lambda q: math.hypot(q[0] - here[0], q[1] - here[1]))
@@ -464,8 +586,6 @@ class Planner:
                          len(self.memory.failed_exits), self.memory.retries, self.p.retries)
                 self.memory.failed_exits.clear()
                 self.memory.failed_at.clear()
-                for a, e, m in self.memory.unreachable:  # a far exit not reached stays so
-                    self.failed(a, e, m)
                 return self.plan(view)
             return Goal("done", asr.id)
         hops, exit_id = path
@@ -574,18 +694,24 @@ def _edges(view: MapView, borrow: bool = False) -> dict[tuple[int, str], int]:
     duplicate ASR (the same space as its original, method.md §5.5) may leave through its
     original's exits, borrowed likewise."""
     edges: dict[tuple[int, str], int] = {}
+    ids: dict[int, set[str]] = {}
     for a in view.asrs.values():
+        ids[a.id] = {e.id for e in a.exits}
         for e in a.exits:
             if e.to is not None:
                 edges[(a.id, e.id)] = e.to
     for ln in view.links:
+        # An exit the ASR no longer has (the mapper renumbers the exits of an ASR that grows) is
+        # as good as missing: the other side's is borrowed.
+        here = ln.exit is not None and ln.exit in ids.get(ln.src, ())
+        there = ln.via is not None and ln.via in ids.get(ln.dst, ())
         if ln.exit is not None:
             edges.setdefault((ln.src, ln.exit), ln.dst)
-        elif borrow and ln.via is not None:
+        if borrow and not here and there:
             edges.setdefault((ln.src, f"{BORROWED}{ln.dst}|{ln.via}"), ln.dst)
         if not ln.oneway and ln.via is not None:
             edges.setdefault((ln.dst, ln.via), ln.src)
-        elif not ln.oneway and borrow and ln.exit is not None:
+        if not ln.oneway and borrow and not there and here:
             edges.setdefault((ln.dst, f"{BORROWED}{ln.src}|{ln.exit}"), ln.src)
     if borrow:
         for a in view.asrs.values():
@@ -731,6 +857,7 @@ class Explorer:
         self._recovery_cmd = (0.0, 0.0)
         self._escaping = self._skipped = False
         self._blocked_since: float | None = None
+        self._through_blocked_since: float | None = None
         self._memory: deque[tuple[float, Pose, np.ndarray]] = deque()
         self._near = np.zeros((0, 2))
         self._last: Command | None = None
@@ -757,6 +884,7 @@ class Explorer:
         self._best = math.inf
         self._best_t = t
         self._reached_t = None
+        self._through_blocked_since = None
         if goal.kind in ("unknown", "exit", "backtrack", "goto"):
             self.counts["goals"] += 1
             kind = {"unknown": "unknown", "exit": "exits", "backtrack": "backtracks", "goto": "backtracks"}
@@ -768,10 +896,13 @@ class Explorer:
         if goal.kind not in ("exit", "backtrack", "goto") or goal.exit is None or goal.asr is None:
             return False
         key = (self.planner.memory.retries, goal.path[-1] if goal.kind == "goto" else goal.asr, goal.exit)
-        n, last = self._attempts.get(key, (0, -math.inf))
-        if self._t - last >= self.p.attempt_spacing:
-            n += 1  # choices in quick succession (an unknown region came and went) are one attempt
-        self._attempts[key] = (n, self._t)
+        n, start = self._attempts.get(key, (0, -math.inf))
+        # Choices in quick succession (an unknown region came and went) are one attempt; an attempt
+        # is timed from its first choice, or a chain of choices (the mapper flipping between two
+        # ASRs every second) would be one attempt for ever.
+        if self._t - start >= self.p.attempt_spacing:
+            n, start = n + 1, self._t
+        self._attempts[key] = (n, start)
         return n > self.p.max_attempts
 
     def _give_up(self, why: str) -> None:
@@ -784,7 +915,6 @@ class Explorer:
             self.planner.looked_at(g.asr, g.look_at)
         elif g.kind == "goto" and g.exit is not None:
             self.planner.failed(g.path[-1], g.exit, g.exit_mid)  # the far exit, in its ASR's frame
-            self.planner.memory.unreachable.append((g.path[-1], g.exit, g.exit_mid))
         elif g.exit is not None and g.asr is not None:
             self.planner.failed(g.asr, g.exit, g.exit_mid)
         self.goal = None
@@ -873,6 +1003,8 @@ class Explorer:
         self._view = view
         if view.current in view.asrs:
             self.planner.observe(view.asrs[view.current], view.pose)
+            self.planner.retire_known_unknown(view, view.asrs[view.current])
+            self.planner.shut_exits(view, points)
         if not self._still_valid(view):
             goal = self._settle(view) or self.planner.plan(view)
             if self._too_often(goal):
@@ -956,8 +1088,33 @@ class Explorer:
         # Doorways leave ~0.24 m a side: steer with a tight margin so the jambs do not repel the robot
         # (only near the exit: a far one, ``goto``, is driven to with the usual margin).
         near = dist < self.p.stage_distance + self.p.through_distance + 0.5
+        if near and self._no_way_through(g.through, pose, points, t):  # type: ignore[arg-type]
+            self._give_up("a surface across the way through")
+            return Command(0.0, 0.0, f"no way through exit {g.exit}")
         return self._drive_to(g.through, pose, points, t, f"{what} {g.exit}",  # type: ignore[arg-type]
                               margin=0.02 if near else None)
+
+    def _no_way_through(self, through: tuple[float, float], pose: Pose, points: np.ndarray, t: float) -> bool:
+        """Whether the scan shows a surface across the straight way to ``through`` (ASR frame) short
+        of ``through_past`` beyond the exit, for ``through_blocked_time`` s while the robot faces it:
+        an exit that is no gap (a chord from a door jamb diagonally across a corridor, its far side
+        behind a wall) is given up at once instead of after ``stuck_time`` against the wall."""
+        p = self.p
+        dist = math.hypot(through[0] - pose[0], through[1] - pose[1])
+        bearing = wrap(math.atan2(through[1] - pose[1], through[0] - pose[0]) - pose[2])
+        if abs(bearing) > p.face_tol or not len(points):
+            self._through_blocked_since = None
+            return False
+        need = max(p.through_past, dist - p.through_distance + p.through_past)
+        # A body narrower than the robot's: one that stopped short of the staging point, off the
+        # doorway's axis, still sees a jamb clip the straight way through a real doorway.
+        free = float(free_distance(points, np.array([bearing]), p, -0.1)[0]) + p.front
+        if free >= need:
+            self._through_blocked_since = None
+            return False
+        if self._through_blocked_since is None:
+            self._through_blocked_since = t
+        return t - self._through_blocked_since >= p.through_blocked_time
 
     def _rotate(self, bearing: float, points: np.ndarray, t: float, status: str,
                 track: bool = True) -> Command:
@@ -1049,15 +1206,22 @@ class Explorer:
 
     def _map_area(self, view: MapView, asr: ASR) -> shapely.Geometry:
         """Every ASR's polygon in ``asr``'s frame, each grown by a little so that neighbours meet
-        at their common exits, as one area (cached while the ASRs stay the same)."""
+        at their common exits, as one area, less ``asr``'s own surfaces (cached while the ASRs stay
+        the same). Drifted neighbours overlap across walls; the current ASR's walls, seen in its own
+        frame, are where they are, so a path out of it leaves through its exits."""
         key = (asr.id, tuple((a.id, id(a.boundary), tuple(a.origin)) for a in view.asrs.values()))
         if self._area_key != key:
             to_here = inverse(asr.origin)
             parts = [shapely.make_valid(shapely.Polygon(transform_points(compose(to_here, a.origin),
                                                                          np.asarray(a.boundary))))
                      for a in view.asrs.values() if len(a.boundary) >= 3]
-            self._area = shapely.union_all([q.buffer(0.05) for q in parts]) if parts else shapely.Polygon()
-            self._area_key = key
+            area = shapely.union_all([q.buffer(0.05) for q in parts]) if parts else shapely.Polygon()
+            b = np.asarray(asr.boundary, dtype=float)
+            walls = [shapely.LineString([b[i], b[(i + 1) % len(b)]])
+                     for i, e in enumerate(asr.edges) if e == "surface" and len(b) >= 3]
+            if walls:
+                area = area.difference(shapely.union_all(walls).buffer(0.05))
+            self._area, self._area_key = area, key
         return self._area
 
     def _off_path(self, pose: Pose) -> bool:

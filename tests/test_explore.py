@@ -310,3 +310,71 @@ def test_a_target_round_a_corner_is_reached_along_a_path_inside_the_asr():
     aim, left = ex._aim((1.0, 5.0), (5.0, 1.0, math.pi), 0.0)
     assert aim[1] < 2.0 - 0.25  # along the foot first, not straight at the corner
     assert left > math.hypot(4.0, 4.0)
+
+
+# --- what needs no visit, and loops that end ---------------------------------------------------------
+
+
+def test_an_exit_whose_far_side_two_asrs_cover_between_them_needs_no_visit():
+    # 1's east exit (x = 4, y 0.5..3.5) opens onto 2 (y 0..2) and 3 (y 2..4), which meet on the
+    # exit's midline: no one ASR, shrunk, holds the points on it, but all the strip beyond is mapped.
+    a1 = room(1, 0, 0, 4, 4, edges=("surface", "exit", "exit", "surface"),
+              exits=[door(1, 0, (4, 0.5), (4, 3.5)), door(1, 1, (1.5, 4), (2.5, 4))])
+    a2 = room(2, 0, 0, 4, 2, origin=(4.0, 0.0, 0.0))
+    a3 = room(3, 0, 0, 4, 2, origin=(4.0, 2.0, 0.0))
+    g = Planner().plan(view([a1, a2, a3], 1))
+    assert g.kind == "exit" and g.exit == "1/1"  # the narrower one: the wide one needs no visit
+    g = Planner(ExploreParams(known_cover=1.01)).plan(view([a1, a2, a3], 1))
+    assert g.exit == "1/0"  # without the cover test the wide one goes first
+
+
+def test_an_unknown_region_whose_space_another_asr_holds_needs_no_look():
+    a1 = room(1, 0, 0, 4, 2, edges=("surface", "unknown", "surface", "surface"))
+    a2 = room(2, 0, 0, 4, 2, origin=(4.0, 0.0, 0.0))
+    assert Planner().plan(view([a1], 1)).kind == "unknown"
+    assert Planner().plan(view([a1, a2], 1)).kind == "done"
+
+
+def test_an_exit_with_a_surface_right_behind_it_is_seen_shut_and_stays_so():
+    a = room(1, 0, 0, 4, 4, edges=EAST_EXIT, exits=[door(1, 0, (4, 1), (4, 3))])
+    v = view([a], 1, pose=(2.0, 2.0, 0.0))
+    # A wall 1.5 m beyond the exit: a way through; 0.1 m beyond: none (robot frame, x ahead).
+    planner = Planner()
+    assert planner.shut_exits(v, wall_points(3.5 - P.laser_x, -1.0, 1.0)) == 0
+    assert planner.plan(v).exit == "1/0"
+    assert planner.shut_exits(v, wall_points(2.1 - P.laser_x, -1.0, 1.0)) == 1
+    assert planner.plan(v).kind == "done"
+    planner.memory.failed_exits.clear()
+    planner.memory.failed_at.clear()  # a retry round forgets failures, not a wall seen
+    assert planner.plan(v).kind == "done"
+
+
+def test_a_link_whose_exit_the_asr_renumbered_is_travelled_through_the_other_side_s_exit():
+    # The link says 1 -> 2 through 1/9, which 1 no longer has (renumbered as it grew); 2's 2/0 is
+    # the same doorway, and 2 still has an exit to explore.
+    a1 = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3))])
+    a2 = room(2, 0, 0, 4, 4, origin=(4.0, 0.0, 0.0),
+              exits=[door(2, 0, (0, 1), (0, 3)), door(2, 1, (4, 1), (4, 3))])
+    links = [LinkRef(1, "1/9", 2, "2/0")]
+    planner = Planner(ExploreParams(known_depths=()))
+    planner.failed(1, "1/0")  # 1's own exit is done with: only the way to 2 is left
+    g = planner.plan(view([a1, a2], 1, links=links))
+    assert g.kind == "backtrack" and g.exit == "<2|2/0" and g.path == (1, 2)
+    assert g.through[0] > 4.0  # beyond the doorway at x = 4 in 1's frame
+
+
+def test_an_exit_chosen_again_every_few_seconds_is_given_up_after_max_attempts():
+    # The mapper flips between 1 and 2 every 2 s (a robot between two drifted ASRs): each flip
+    # chooses each ASR's exit again. An attempt is timed from its first choice, so the chain of
+    # choices counts as attempts attempt_spacing apart, and the exits are given up.
+    a1 = room(1, 0, 0, 4, 4, edges=EAST_EXIT, exits=[door(1, 0, (4, 1), (4, 3))])
+    a2 = room(2, 0, 0, 4, 4, origin=(20.0, 0.0, 0.0), edges=EAST_EXIT, exits=[door(2, 0, (4, 1), (4, 3))])
+    ex = Explorer()
+    given_up_at = None
+    for t in np.arange(0.0, 120.0, 0.5):
+        cur = 1 if int(t // 2.0) % 2 == 0 else 2
+        ex.step(view([a1, a2], cur, pose=(1.0, 2.0, 0.0)), np.zeros((0, 2)), float(t))
+        if given_up_at is None and (1, "1/0") in ex.planner.memory.failed_exits:
+            given_up_at = float(t)
+    assert given_up_at is not None
+    assert given_up_at >= P.max_attempts * P.attempt_spacing
