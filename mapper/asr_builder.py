@@ -312,8 +312,6 @@ class AsrBuilder:
             ev = ev / np.maximum(np.hypot(ev[:, 0], ev[:, 1]), 1e-12)[:, None]
             gone = np.stack([a[explained], b[explained]], axis=1)
             self.exit_segments = es[~_along(0.5 * (es[:, 0] + es[:, 1]), ev, gone, p.label_tolerance)]
-        if self.polygon.area < p.sliver_area:
-            return None  # a sliver: its next views grow it through its exit (MapperParams.sliver_area)
         keep = ~explained
         key = (a[keep].tobytes(), b[keep].tobytes())
         if self._gate_cache is not None and self._gate_cache[0] == key:

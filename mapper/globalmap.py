@@ -190,11 +190,6 @@ class GlobalMap:
                     survivors.append((overlap, m, cm, "aligned-crosscheck", align))
                 continue
             if not _mutual(poly, c, pm, cm, p.crosscheck_margin):
-                # Beyond the paper: the centres disagree by the drift; aligned, they may not.
-                align = self._align_near(n, m, poly, cm) if p.search_radius > 0 else None
-                if align is not None:
-                    survivors.append((overlap, m, cm, "aligned-crosscheck", align))
-                    continue
                 self._rejected.setdefault((n, m), t)
                 events += self._decide(t, n, m, c, cm, overlap, "centre-crosscheck", False)
             else:

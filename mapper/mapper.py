@@ -271,30 +271,19 @@ class Mapper:
         pose = self.pose
         timing["localise"] = time.perf_counter() - tic
         # inside the polygon the robot neither crossed an exit nor left elsewhere (distance 0)
-        b = self._builders[self.current]
-        inside = bool(shapely.contains_xy(b.polygon, pose[0], pose[1]))
+        inside = bool(shapely.contains_xy(self._builders[self.current].polygon, pose[0], pose[1]))
         if inside:
             self._been_inside = True
-        sliver = self._is_sliver(b)
-        crossed = None
-        held = sliver and (inside or b.polygon.distance(shapely.Point(pose[:2])) <= self.params.sliver_leave)
-        if not held:  # a sliver near the robot is not left: its next views grow it
-            crossed = self._crossed_exit(prev, pose, inside)
-            if crossed is None and not inside and self._may_leave_elsewhere(pose):
-                crossed = self._left_elsewhere(prev, pose)
+        crossed = self._crossed_exit(prev, pose, inside)
+        if crossed is None and not inside and self._may_leave_elsewhere(pose):
+            crossed = self._left_elsewhere(prev, pose)
         if crossed is not None:
             events = self._leave_through(scan.t, crossed[0], crossed[1], pose, pts)
             self._entered_at, self._been_inside = self.pose[:2], False
             return events
-        if sliver or self._is_viewpoint(pose):
+        if self._is_viewpoint(pose):
             return self._add_view(scan.t, pts, pose)
         return []
-
-    def _is_sliver(self, b: AsrBuilder) -> bool:
-        """Whether ASR ``b`` is still a sliver (``MapperParams.sliver_area``): not left through its
-        exits while the robot is near it, and grown by every scan. An ASR with no polygon yet
-        (nothing seen) is not: nothing would grow it."""
-        return not b.polygon.is_empty and b.polygon.area < self.params.sliver_area
 
     # --- growing the current ASR -----------------------------------------------------------------
     def _is_viewpoint(self, pose: Pose) -> bool:

@@ -84,15 +84,10 @@ class MapperParams:
     #: moved this far from where it came in (a pose handed over into a drifted ASR can land just
     #: outside it; leaving again at once bounces the robot between two ASRs every scan).
     leave_settle: float = 1.0
-    #: m². An ASR smaller than this is a *sliver*: a first view taken on a doorway, cut off by the
-    #: doorway's own exit just ahead. A sliver's exits neither gate later views nor are left
-    #: through, and each scan is a view, until the views grow it into the room beyond (or the
-    #: robot gets ``sliver_leave`` outside it). A room is several m².
+    #: m². A new ASR whose first view is smaller than this is a *sliver* (taken on a doorway, cut
+    #: off by the doorway's own exit just ahead): no entrance is opened on it, where the chord could
+    #: face anywhere. A room is several m².
     sliver_area: float = 1.0
-    #: m. How far outside a sliver the robot may get before it leaves it anyway, as it leaves any
-    #: ASR (a sliver its views cannot grow: a passage narrower than the laser sees through): two
-    #: passage widths.
-    sliver_leave: float = 1.2
     #: m. Depth of the region beyond each exit of an ASR that later views may not grow into (the
     #: next room seen through a doorway belongs to the next ASR): a room's worth.
     gate_depth: float = 4.0
