@@ -31,6 +31,7 @@ The centre is the centroid, or ``point_on_surface`` when the centroid falls outs
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import shapely
@@ -243,14 +244,23 @@ class AsrBuilder:
             self.viewpoints.append(pose)
         self._recorded = len(self.viewpoints)
 
-    def open_exit(self, at: tuple[float, float]) -> Exit:
+    def open_exit(self, at: tuple[float, float], accept: Callable[[Exit], bool] | None = None) -> Exit | None:
         """Open an exit where the robot left through a non-exit edge (ASR frame, m).
 
         The robot may leave through an ``unknown`` edge (unexplored periphery) or where the views
         never showed a gap: that place is an exit, ``passage_width`` wide along the boundary,
-        centred on the point ``at`` nearest to where the robot left.
+        centred on the point ``at`` nearest to where the robot left. With ``accept``, the exit is
+        kept only if ``accept(exit)``; else the ASR is left as it was and None returned.
         """
         self.ensure_labels()
+        if accept is not None:
+            saved = (self.exit_segments, list(self.asr.exits), self.asr.boundary, list(self.asr.edges),
+                     self._next_exit)
+            e = self.open_exit(at)
+            if accept(e):
+                return e
+            self.exit_segments, self.asr.exits, self.asr.boundary, self.asr.edges, self._next_exit = saved
+            return None
         ring = self.polygon.exterior
         d = ring.project(shapely.Point(at))
         h = 0.5 * self.p.passage_width

@@ -62,7 +62,7 @@ import shapely
 from mapper.asr_builder import AsrBuilder
 from mapper.document import document_of, load_globalmap
 from mapper.events import AsrCreated, AsrUpdated, Event, ExitCrossed
-from mapper.exits import find_covers
+from mapper.exits import closest_xy, find_covers
 from mapper.globalmap import GlobalMap
 from mapper.lines import ScanPoints, extract_surfaces, scan_points
 from mapper.localise import Localiser
@@ -525,12 +525,7 @@ class Mapper:
         b = self._builders[asr]
         if b.polygon.area < self.params.sliver_area:
             return None
-        saved = (b.exit_segments, list(b.asr.exits), b.asr.boundary, list(b.asr.edges), b._next_exit)
-        e = b.open_exit(at)
-        if _outward_x(e) < -0.5 and e.midpoint[0] < 0.3:
-            return e
-        b.exit_segments, b.asr.exits, b.asr.boundary, b.asr.edges, b._next_exit = saved
-        return None
+        return b.open_exit(at, accept=lambda e: _outward_x(e) < -0.5 and e.midpoint[0] < 0.3)
 
     def _reenter(self, t: float, tr: Transition, pose: Pose, pts: ScanPoints) -> list[Event]:
         """Re-enter the known ASR ``tr.dst``: hand the pose over (``tr.rel`` is its frame seen from
@@ -564,17 +559,13 @@ class Mapper:
         doorway is a sliver whose only exit is its front edge; taken as the entrance, its crossing
         was ignored as the robot walked on (entry hysteresis) and its gate kept every later view
         from growing the ASR ahead: in the Intel log the robot stayed in a 0.1 m² ASR for 2700 scans."""
-        best, best_d = None, 2.0 * self.params.passage_width
-        for e in self._asrs[asr].exits:
-            if _outward_x(e) > 0.5:
-                continue
-            a, b = np.asarray(e.a), np.asarray(e.b)
-            ab = b - a
-            tt = float(np.clip(np.dot(np.asarray(at) - a, ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0))
-            d = float(np.hypot(*(a + tt * ab - np.asarray(at))))
-            if d < best_d:
-                best, best_d = e, d
-        return best
+        exits = [e for e in self._asrs[asr].exits if _outward_x(e) <= 0.5]
+        if not exits:
+            return None
+        qx, qy, _ = closest_xy(at[0], at[1], np.array([[e.a, e.b] for e in exits], dtype=float))
+        d = np.hypot(qx - at[0], qy - at[1])
+        k = int(np.argmin(d))  # the first of equals, as before
+        return exits[k] if d[k] < 2.0 * self.params.passage_width else None
 
     def _new_asr(self, t: float, origin: Pose, entered_from: int | None, pts: ScanPoints) -> list[Event]:
         """A new ASR whose frame is the robot pose at this scan; the scan is its first view."""

@@ -437,8 +437,7 @@ class Planner:
                 disc = disc.difference(own)
             if disc.area <= 1e-6:
                 continue
-            others = [g for i, g in polygons if i != asr.id and g.intersects(disc)]
-            if others and disc.intersection(shapely.union_all(others)).area >= self.p.known_cover * disc.area:
+            if self._covered_by_others(view, asr.id, disc):
                 self.looked_at(asr.id, m)
                 n += 1
         return n
@@ -522,11 +521,15 @@ class Planner:
         strip = shapely.Polygon(transform_points(asr.origin, np.array([a, b, b + far, a + far])))
         if strip.area <= 0.0:
             return False
-        others = [g for i, g in self._known_polygons(view) if i != asr.id and g.intersects(strip)]
+        return self._covered_by_others(view, asr.id, strip)
+
+    def _covered_by_others(self, view: MapView, asr_id: int, shape: shapely.Geometry) -> bool:
+        """Whether at least ``known_cover`` of ``shape`` (global frame) lies inside the polygons of
+        ASRs other than ``asr_id``."""
+        others = [g for i, g in self._known_polygons(view) if i != asr_id and g.intersects(shape)]
         if not others:
             return False
-        covered = strip.intersection(shapely.union_all(others)).area
-        return covered >= self.p.known_cover * strip.area
+        return shape.intersection(shapely.union_all(others)).area >= self.p.known_cover * shape.area
 
     def _known_polygons(self, view: MapView) -> list[tuple[int, shapely.Geometry]]:
         """Every ASR's polygon in the global frame, as it is (cached like :meth:`_known_areas`)."""
