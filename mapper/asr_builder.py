@@ -165,13 +165,15 @@ class AsrBuilder:
         self._recorded = 0  # viewpoints appended by _record (see add_view)
         self._next_exit = 0
         self.stale = False  # the polygon grew but the record was not relabelled yet
+        self._unstored: tuple[np.ndarray, np.ndarray] | None = None  # a view's segments, not yet stored
 
     def add_view(self, view: View, pose: Pose, relabel: bool = True) -> bool:
         """Union the view seen from ``pose`` (ASR frame) into the ASR; True when the ASR changed.
 
-        With ``relabel`` False the polygon and the label store are updated but the record's
-        boundary, labels, exits and centre only when :meth:`ensure_labels` is called (``stale``
-        until then); every method that needs them calls it first."""
+        With ``relabel`` False only the polygon is updated now; the label store (the view's surface
+        and exit segments) and the record's boundary, labels, exits and centre when
+        :meth:`ensure_labels` is called (``stale`` until then); every method that needs them calls
+        it first."""
         self.ensure_labels()
         p = self.p
         robot = shapely.Point(pose[:2])
@@ -191,7 +193,9 @@ class AsrBuilder:
         gates = self._gates(world_surfaces)
         new = shapely.union_all(pieces) if len(pieces) > 1 else pieces[0]
         if gates is not None:
-            new = shapely.difference(new, gates)
+            near = gates[shapely.intersects(gates, new)]  # most gates are far from this view
+            if len(near):
+                new = shapely.difference(new, near[0] if len(near) == 1 else shapely.union_all(near))
         grown = shapely.union(self.polygon, new)
         if grown.is_empty:  # nothing seen yet (every beam no return, or the laser covered)
             return False
@@ -199,10 +203,8 @@ class AsrBuilder:
             self._record(pose, robot)
             return False
         self.polygon = self._single_ring(grown, robot)
-        tol = 0.5 * p.label_tolerance
-        self.surfaces, self.exit_segments = _add_new(
-            [self.surfaces, self.exit_segments], [world_surfaces, _transform_segments(pose, view.exits)], tol
-        )
+        # the label store takes the view's segments when next relabelled (nothing reads it before)
+        self._unstored = (world_surfaces, _transform_segments(pose, view.exits))
         self._record(pose, robot)
         if relabel:
             self._relabel()
@@ -292,8 +294,9 @@ class AsrBuilder:
             self.asr.exits.append(near)
         return near
 
-    def _gates(self, seen: np.ndarray) -> shapely.Geometry | None:
-        """What lies beyond the ASR's exits: later views must not grow into it.
+    def _gates(self, seen: np.ndarray) -> np.ndarray | None:
+        """What lies beyond the ASR's exits (an array of polygons, ASR frame): later views must not
+        grow into it.
 
         Without this the views taken near a doorway, which see through it, would swallow the next
         room and the robot would never leave the ASR. Each exit's gate is a trapezoid from the exit
@@ -331,7 +334,7 @@ class AsrBuilder:
         d = p.gate_depth
         ak, bk, sk = a[keep], b[keep], s[keep]
         quads = np.stack([ak, bk, bk + d * (n + sk), ak + d * (n - sk)], axis=1)
-        gates = shapely.union_all(shapely.polygons(quads)) if len(quads) else None
+        gates = shapely.polygons(quads) if len(quads) else None
         self._gate_cache = (key, gates)
         return gates
 
@@ -379,6 +382,11 @@ class AsrBuilder:
 
     def _relabel(self) -> None:
         p = self.p
+        if self._unstored is not None:
+            segs, self._unstored = self._unstored, None
+            self.surfaces, self.exit_segments = _add_new(
+                [self.surfaces, self.exit_segments], list(segs), 0.5 * p.label_tolerance
+            )
         v = self._ring()
         nxt = np.concatenate([v[1:], v[:1]])
         mid = 0.5 * (v + nxt)

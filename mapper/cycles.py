@@ -211,56 +211,62 @@ def align_points(
     if len(p) < 10 or len(q) < 10:
         return None
     tree = cKDTree(q)
-    total: Pose = (0.0, 0.0, 0.0)
-    cur = p
+    k = min(4, len(q))
+    rows = np.arange(len(p))
+    px, py = p[:, 0], p[:, 1]
     ramp = max(2, (2 * iterations) // 3)
-    gates = np.concatenate(
-        [np.geomspace(start_distance, inlier_distance, ramp), np.full(iterations - ramp, inlier_distance)]
-    )
+    gates = np.geomspace(start_distance, inlier_distance, ramp).tolist()
+    gates += [inlier_distance] * (iterations - ramp)
     damping = 1e-3 * len(p)
 
-    def nearest(pts: np.ndarray, rot: float, gate: float):
+    def nearest(pts: np.ndarray, rot: float, gate: float) -> tuple[np.ndarray, np.ndarray]:
+        """(matched?, index into Q) for each point of ``pts`` (P moved by the current estimate)."""
         if p_normals is None:
-            return tree.query(pts, distance_upper_bound=gate)
-        k = min(4, len(q))
+            d, j = tree.query(pts, distance_upper_bound=gate)
+            return d < np.inf, np.minimum(j, len(q) - 1)
         d, j = tree.query(pts, k=k, distance_upper_bound=gate)
-        facing = transform_points((0.0, 0.0, rot), p_normals)
-        jj = np.minimum(j, len(q) - 1)
-        ok = np.isfinite(d) & (np.einsum("nkc,nc->nk", q_normals[jj], facing) > 0.5)
+        j = np.minimum(j, len(q) - 1)
+        c, s = math.cos(rot), math.sin(rot)
+        fx = c * p_normals[:, 0] - s * p_normals[:, 1]  # P's normals, rotated with P
+        fy = s * p_normals[:, 0] + c * p_normals[:, 1]
+        qn = q_normals[j]  # (N, k, 2)
+        ok = (d < np.inf) & (qn[..., 0] * fx[:, None] + qn[..., 1] * fy[:, None] > 0.5)
         first = np.argmax(ok, axis=1)
-        rows = np.arange(len(pts))
-        return np.where(ok[rows, first], d[rows, first], np.inf), jj[rows, first]
+        return ok[rows, first], j[rows, first]
 
+    tx = ty = th = 0.0  # the estimate so far: P moved by (tx, ty, th) is ``cur``
+    cur = p
     for gate in gates:
-        d, j = nearest(cur, total[2], gate)
-        ok = np.isfinite(d)
-        if ok.sum() < 10:
+        ok, j = nearest(cur, th, gate)
+        if np.count_nonzero(ok) < 10:
             return None
-        pp, qq, nn = cur[ok], q[j[ok]], q_normals[j[ok]]
+        pp, jo = cur[ok], j[ok]
+        qq, nn = q[jo], q_normals[jo]
         # Rotation about the matched points' centroid keeps the system well conditioned.
         m = pp.mean(axis=0)
         r = pp - m
-        jac = np.c_[r[:, 0] * nn[:, 1] - r[:, 1] * nn[:, 0], nn]
-        res = np.einsum("ij,ij->i", qq - pp, nn)
-        x = np.linalg.solve(jac.T @ jac + damping * np.eye(3), jac.T @ res)
-        c, s = math.cos(x[0]), math.sin(x[0])
-        step = (
-            float(m[0] + x[1] - (c * m[0] - s * m[1])),
-            float(m[1] + x[2] - (s * m[0] + c * m[1])),
-            float(x[0]),
-        )
-        total = compose(step, total)
-        cur = transform_points(total, p)
-        if gate == inlier_distance and abs(x[0]) + abs(x[1]) + abs(x[2]) < 1e-6:
+        n0, n1 = nn[:, 0], nn[:, 1]
+        jac_t = np.stack([r[:, 0] * n1 - r[:, 1] * n0, n0, n1])  # (3, N): d residual / (dθ, dx, dy)
+        res = (qq[:, 0] - pp[:, 0]) * n0 + (qq[:, 1] - pp[:, 1]) * n1
+        h = jac_t @ jac_t.T
+        h[np.diag_indices(3)] += damping
+        x0, x1, x2 = np.linalg.solve(h, jac_t @ res).tolist()
+        m0, m1 = float(m[0]), float(m[1])
+        c, s = math.cos(x0), math.sin(x0)
+        tx, ty, th = compose((m0 + x1 - (c * m0 - s * m1), m1 + x2 - (s * m0 + c * m1), x0), (tx, ty, th))
+        c, s = math.cos(th), math.sin(th)
+        cur = np.empty_like(p)
+        cur[:, 0] = tx + c * px - s * py
+        cur[:, 1] = ty + s * px + c * py
+        if gate == inlier_distance and abs(x0) + abs(x1) + abs(x2) < 1e-6:
             break
-    d, j = nearest(cur, total[2], inlier_distance)
-    ok = np.isfinite(d)
-    dist = np.abs(np.einsum("ij,ij->i", cur[ok] - q[j[ok]], q_normals[j[ok]]))
+    ok, j = nearest(cur, th, inlier_distance)
+    qq, nn = q[j[ok]], q_normals[j[ok]]
+    dist = np.abs(np.einsum("ij,ij->i", cur[ok] - qq, nn))
     rms = float(np.sqrt(np.mean(dist**2))) if ok.any() else math.inf
     shift = float(np.hypot(*(cur.mean(axis=0) - p.mean(axis=0))))
-    nn = q_normals[j[ok]]
     constraint, axis = 0.0, 0.0
     if len(nn):
         w, v = np.linalg.eigh(nn.T @ nn / len(nn))
         constraint, axis = float(w[0]), float(math.atan2(v[1, 0], v[0, 0]))
-    return Alignment((total[0], total[1], wrap(total[2])), rms, float(ok.mean()), shift, constraint, axis)
+    return Alignment((tx, ty, wrap(th)), rms, float(ok.mean()), shift, constraint, axis)

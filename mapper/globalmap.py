@@ -266,15 +266,20 @@ class GlobalMap:
 
     def _align_near(self, n: int, m: int, poly_n: shapely.Geometry, cm: tuple[float, float]
                     ) -> Alignment | None:
-        """The surface alignment of n onto the nearby m when it verifies and constrains both axes
-        (``verify_min_constraint``: its alignment is the only evidence), else None. Not tried when
-        m's centre lies farther from n's polygon (global frame) than the largest correction
-        allowed: no verified alignment could bring it inside."""
+        """The surface alignment of n onto the nearby m when it verifies, constrains both axes
+        (``verify_min_constraint``) and explains ``verify_near_min_inliers`` of the surfaces (its
+        alignment is the only evidence), else None. Not tried when m's centre lies farther from n's
+        polygon (global frame) than the largest correction allowed: no verified alignment could
+        bring it inside."""
         p = self.params
         if not p.verify or poly_n.distance(shapely.Point(cm)) > p.verify_max_correction:
             return None
         align = self._align(n, m, gate=max(1.0, p.search_radius))
-        if self._verified(align, n, m) and align.constraint >= p.verify_min_constraint:
+        if (
+            self._verified(align, n, m)
+            and align.constraint >= p.verify_min_constraint
+            and align.inliers >= p.verify_near_min_inliers
+        ):
             return align
         return None
 

@@ -282,7 +282,10 @@ class Mapper:
             self._entered_at, self._been_inside = self.pose[:2], False
             return events
         if self._is_viewpoint(pose):
-            return self._add_view(scan.t, pts, pose)
+            tic = time.perf_counter()
+            self.localiser.refine(pts.xy)  # a viewpoint's pose is inherited by the reference
+            timing["refine"] = time.perf_counter() - tic
+            return self._add_view(scan.t, pts, self.pose)
         return []
 
     # --- growing the current ASR -----------------------------------------------------------------

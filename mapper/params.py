@@ -142,6 +142,27 @@ class MapperParams:
     #: Squared Mahalanobis gate on the innovation (chi² with 3 dof at 99.9 %: 16.3). A match that
     #: disagrees more with the prediction is rejected as a false peak.
     gate_chi2: float = 16.3
+    #: Refine a scan's pose by ICP against the reference before it becomes a viewpoint (see
+    #: :mod:`mapper.localise`, "Viewpoint refinement"). Off, a viewpoint keeps the histogram
+    #: match's pose (the paper's localisation), whose errors the ASR's later references inherit.
+    refine: bool = True
+    #: m. ICP's correspondence gate shrinks from ``refine_start`` (about the histogram match's
+    #: worst error) to ``refine_inlier`` (range noise plus a wall's thickness in a scan) over at
+    #: most ``refine_iterations`` steps (20: fewer left Intel's viewpoints off by degrees).
+    refine_start: float = 0.30
+    refine_inlier: float = 0.08
+    refine_iterations: int = 20
+    #: Fraction of the scan's points that must end within ``refine_inlier`` of the reference: less
+    #: means the scan sees mostly what the reference did not (a new room), and ICP would guess.
+    refine_min_inliers: float = 0.6
+    #: m. The reference scans are densified to a point every this along their surfaces for ICP
+    #: (see :func:`mapper.localise._densify`): well below the beams' spacing on a wall.
+    refine_spacing: float = 0.02
+    #: m. Floor of the point-to-plane residual used for the refinement's covariance (range noise).
+    refine_sigma_floor: float = 0.01
+    #: Independent points a scan's residuals count as: neighbouring beams on one wall share their
+    #: errors, so the covariance of N pairs is that of this many (fewer: trusted less).
+    refine_effective_points: int = 100
 
     # --- §4, §5, §7 topology, global metric map and cycles ----------------------------------------
     #: Cycle detection, closing and realignment (:class:`mapper.cycle_params.CycleParams`, every field

@@ -5,7 +5,8 @@ view polygon and the ASR union; and whatever else ``Mapper.add_scan`` runs, e.g.
 timed around ``Mapper.add_scan`` on one core; the log is parsed before timing. The mapper runs
 pipelined as in ``asrmap replay`` (``defer_views=True``: a viewpoint's union and relabelling run at
 the start of the next two scans, the same map); the figures with each view's work in its own scan
-(as the live service runs) follow. Prints median, p99
+(as the live service runs) follow, and those of the core alone (cycle closing off, so no
+surface alignment: the scope of the mapper-core issue). Prints median, p99
 and max of the wall clock and of this thread's CPU time (which other processes on a busy machine
 do not inflate), scans/s and the real-time factor (log duration / compute time), then each stage's
 median and p99 over the scans that ran it (``Mapper.timing``, wall clock), and the cost of
@@ -14,6 +15,7 @@ extraction + exits + view on *every* scan (as if each scan were a viewpoint).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -66,6 +68,12 @@ def run(args=None) -> dict:
         out[f"{k}_median_ms"] = float(np.median(s))
         out[f"{k}_p99_ms"] = float(np.percentile(s, 99))
         print(f"  stage {k:9s} ({len(s):4d} scans): {_stats(s)}")
+    # The core alone (the mapper-core issue's scope: no cycle check, so no surface alignment)
+    core = dataclasses.replace(params, cycles=dataclasses.replace(params.cycles, enabled=False))
+    mc, alone, _, _ = _replay(items, core, defer_views=True)
+    alone_ms = np.asarray(alone) * 1e3
+    out["core_median_ms"], out["core_p99_ms"] = float(np.median(alone_ms)), float(np.percentile(alone_ms, 99))
+    print(f"  the core alone, cycle closing off ({len(mc.asrs)} ASRs): {_stats(alone_ms)}")
     _, now, now_cpu, _ = _replay(items, params, defer_views=False)
     now_ms, now_cpu = np.asarray(now) * 1e3, np.asarray(now_cpu) * 1e3
     out["immediate_median_ms"] = float(np.median(now_ms))
