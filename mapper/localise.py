@@ -37,21 +37,21 @@ in the ASR frame.
 :math:`S = P + R`; the match is rejected when :math:`\mathbf{y}^T S^{-1} \mathbf{y} >` ``gate_chi2``,
 else filterpy's ``update(z, R)`` (:math:`H = I`) fuses it.
 
-**Viewpoint refinement (beyond Röfer; ``refine``).** A viewpoint scan becomes part of the
-reference, so its pose error is inherited by every later match in the ASR, and by the frame of
-the next ASR created from it: on the Intel log the histogram matches drifted +2° per ASR, which
-put revisits 11 m from the places they revisit. Before a scan is taken as a viewpoint,
-:meth:`Localiser.refine` aligns its points to the reference points (densified along their
-surfaces to one every ``refine_spacing``) by point-to-point ICP (closest point within a gate shrinking from ``refine_start`` to ``refine_inlier``; the closed-form rigid
-motion of the pairs each step, ``refine_iterations`` steps at most), from the filtered pose. It is
-a measurement like a match: rejected when fewer than ``refine_min_inliers`` of the points end
-within the last gate, else fused with the covariance of point-to-plane alignment,
-:math:`R = \sigma^2 (\sum_i J_i^T J_i)^{-1}` over the pairs whose reference point has a surface
-direction (normal :math:`n_i`, lever :math:`r_i` from the robot:
-:math:`J_i = (n_i^T, r_i \times n_i)`), with :math:`\sigma` the pairs' RMS point-to-plane
-residual (at least ``refine_sigma_floor``) times :math:`\sqrt{N / \text{refine_effective_points}}`
-(neighbouring points' errors are not independent): along a corridor, where nothing constrains
-the motion, it hardly moves the estimate.
+**Viewpoint refinement (beyond Röfer; ``refine``).** A viewpoint scan becomes part of the reference,
+so its pose error is inherited by every later match in the ASR, and by the frame of the next ASR
+created from it: on the Intel log the histogram matches drifted +2° per ASR, which put revisits 11 m
+from the places they revisit. Before a scan is taken as a viewpoint, :meth:`Localiser.refine` aligns
+its points to the reference points (densified along their surfaces to one every ``refine_spacing``)
+by point-to-point ICP (closest point within a gate shrinking from ``refine_start`` to
+``refine_inlier``; the closed-form rigid motion of the pairs each step, ``refine_iterations`` steps
+at most), from the filtered pose. It is a measurement like a match: rejected when fewer than
+``refine_min_inliers`` of the points end within the last gate, else fused with the covariance of
+point-to-plane alignment, :math:`R = \sigma^2 (\sum_i J_i^T J_i)^{-1}` over the pairs whose
+reference point has a surface direction (normal :math:`n_i`, lever :math:`r_i` from the robot:
+:math:`J_i = (n_i^T, r_i \times n_i)`), with :math:`\sigma` the pairs' RMS point-to-plane residual
+(at least ``refine_sigma_floor``) times :math:`\sqrt{N / \text{refine_effective_points}}`
+(neighbouring points' errors are not independent): along a corridor, where nothing constrains the
+motion, it hardly moves the estimate.
 """
 
 from __future__ import annotations
