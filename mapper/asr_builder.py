@@ -36,6 +36,7 @@ from collections.abc import Callable
 import numpy as np
 import shapely
 
+from mapper.cycles import centre_of
 from mapper.exits import closest_xy
 from mapper.params import MapperParams
 from mapper.se2 import Pose, transform_points
@@ -401,14 +402,11 @@ class AsrBuilder:
             labels[ei[si < ne]] = "exit"  # an edge along both is an exit
         exits = self._exit_runs(v, labels)
         self._prune()
-        centroid = self.polygon.centroid
-        if self.polygon.contains(centroid):
-            centre, rule = centroid, "centroid"
-        else:
-            centre, rule = self.polygon.point_on_surface(), "point_on_surface"
+        centre = centre_of(self.polygon)
+        rule = "centroid" if self.polygon.contains(self.polygon.centroid) else "point_on_surface"
         a = self.asr
         a.boundary, a.edges = v, labels.tolist()
-        a.centre, a.centre_rule = (float(centre.x), float(centre.y)), rule
+        a.centre, a.centre_rule = centre, rule
         a.exits = self._keep_ids(exits)
 
     def _exit_runs(self, v: np.ndarray, labels: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:

@@ -41,6 +41,14 @@ class CycleParams:
     A centre near the other's boundary is where drift and the ragged outline of real ASRs (spikes
     seen through gaps) decide, not the place; 0 is the paper's test."""
 
+    hold_crosscheck: bool = True
+    """Beyond the paper: an accepted cycle keeps holding as its two ASRs grow. A view that would
+    leave either centre less than ``crosscheck_margin`` inside the other ASR's polygon (global
+    frame), or less deep than it was, is not unioned into the ASR (``Mapper._keep_closed_places``):
+    the robot leaves it as it leaves any ASR, into a new one. A duplicate that grew on past the
+    place it was matched as had its centre move out of its match (lab world: 0.4-0.6 m inside at
+    acceptance, 0.15-0.2 m outside at the end, in truth as in the map)."""
+
     search_radius: float = 2.0
     """m. Beyond the paper (needs ``verify``): ASRs whose global polygon comes within this distance of
     the current centre without containing it are aligned by their surfaces, and become candidates if
@@ -88,6 +96,16 @@ class CycleParams:
     (all normals parallel, ~0) an alignment says nothing about the position along it, so it cannot
     make a match; an L-corner or a room gives 0.2-0.5."""
 
+    verify_constrained: float = 0.05
+    """Smallest eigenvalue (0..0.5) of the matched surfaces' normal scatter required of every
+    verified match (``verify_min_constraint``, stricter, is required of one found only by
+    ``search_radius``). Along a straight corridor the surfaces say nothing about where along it the
+    two ASRs lie, so the match rests on the drifting map alone: in the lab world the matches with
+    0-0.007 were placed 0.5-6 m off along the corridor, and every false closure of three seed-0
+    runs was one; those with 0.03 or more were 0.01-0.16 m off. A dead end's wall (2 m across a
+    6 m piece: 0.14) is enough. The corner or room next to a straight piece closes the cycle
+    instead. 0: no requirement (verification as before)."""
+
     verify_near_min_inliers: float = 0.5
     """Fraction of inliers (as ``verify_min_inliers``) required of a candidate found only by
     ``search_radius``: with no crosscheck behind it, half its surfaces must agree. On MIT CSAIL a
@@ -112,10 +130,17 @@ class CycleParams:
     """rad per metre travelled (plus a 0.01 rad floor): the heading drift of odometry edges."""
 
     loop_sigma_xy: float = 0.1
-    """m. Standard deviation of a loop edge's translation (ICP alignment of two ASRs)."""
+    """m. Standard deviation of a loop edge's translation (ICP alignment of two ASRs) along an axis
+    the aligned surfaces constrain (``loop_constraint_full``): a few cm of alignment error, doubled."""
 
     loop_sigma_theta: float = 0.05
     """rad. Standard deviation of a loop edge's rotation."""
+
+    loop_constraint_full: float = 0.15
+    """Smallest eigenvalue (0..0.5) of a verified alignment's normal scatter along an axis for the
+    loop edge to carry ``loop_sigma_xy`` along it; less, and its information there falls in
+    proportion down to an unverified edge's (``GlobalMap._loop_info``). The same figure as
+    ``verify_min_constraint``: an L-corner or a room gives 0.2-0.5, a straight corridor ~0."""
 
     loop_sigma_unverified_xy: float = 1.0
     """m. A loop edge without an ICP alignment only says the two centres coincide: loose."""
@@ -131,6 +156,7 @@ class CycleParams:
         """The paper's plain method: crosscheck and best overlap, no hindsight/verification/realignment."""
         return cls(
             hindsight=False,
+            hold_crosscheck=False,
             verify=False,
             realign=False,
             exclude_hops=1,

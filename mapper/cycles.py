@@ -43,6 +43,25 @@ def global_centre(asr: ASR, origin: Pose | None = None) -> tuple[float, float]:
     return (float(p[0]), float(p[1]))
 
 
+def centre_of(polygon: shapely.Geometry) -> tuple[float, float]:
+    """An ASR's centre (method.md §3) from its polygon, in the polygon's frame (m): the centroid,
+    or a representative point inside when the centroid falls outside a concave polygon."""
+    c = polygon.centroid
+    if not polygon.contains(c):
+        c = polygon.point_on_surface()
+    return (float(c.x), float(c.y))
+
+
+def depth_inside(polygon: shapely.Geometry, point: tuple[float, float]) -> float:
+    """Signed distance (m) of ``point`` from ``polygon``'s boundary, both in one frame: positive
+    inside, negative outside; -inf for an empty polygon."""
+    if polygon.is_empty:
+        return -math.inf
+    pt = shapely.Point(point)
+    d = float(polygon.boundary.distance(pt))
+    return d if polygon.covers(pt) else -d
+
+
 def iou(a: shapely.Geometry, b: shapely.Geometry) -> float:
     """Intersection over union of two areas (0..1); 0 for empty geometry."""
     union = shapely.union(a, b).area
@@ -149,6 +168,9 @@ class Alignment:
     """Smallest eigenvalue of the matched surfaces' normal scatter (mean n nᵀ of unit normals), 0..0.5:
     0 when every matched surface is parallel (a straight corridor, where the alignment along it is
     unobserved), 0.5 when they face every way equally (a room's four walls)."""
+    axis: float = 0.0
+    """rad, global frame: the direction of translation the matched surfaces constrain least (the
+    eigenvector of ``constraint``): along a corridor, the corridor's direction."""
     violation: float = 0.0
     """Fraction of surface points that, after the alignment, lie inside the other ASR's free space
     (deeper than a margin into its polygon): walls where the other place has none. Set by the caller."""
@@ -243,5 +265,8 @@ def align_points(
     dist = np.abs(np.einsum("ij,ij->i", cur[ok] - qq, nn))
     rms = float(np.sqrt(np.mean(dist**2))) if ok.any() else math.inf
     shift = float(np.hypot(*(cur.mean(axis=0) - p.mean(axis=0))))
-    constraint = float(np.linalg.eigvalsh(nn.T @ nn / len(nn))[0]) if len(nn) else 0.0
-    return Alignment((tx, ty, wrap(th)), rms, float(ok.mean()), shift, constraint)
+    constraint, axis = 0.0, 0.0
+    if len(nn):
+        w, v = np.linalg.eigh(nn.T @ nn / len(nn))
+        constraint, axis = float(w[0]), float(math.atan2(v[1, 0], v[0, 0]))
+    return Alignment((tx, ty, wrap(th)), rms, float(ok.mean()), shift, constraint, axis)

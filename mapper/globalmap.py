@@ -39,6 +39,8 @@ from mapper.cycles import (
     Alignment,
     SpatialIndex,
     align_points,
+    centre_of,
+    depth_inside,
     free_space_violation,
     global_centre,
     global_polygon,
@@ -100,6 +102,7 @@ class GlobalMap:
         self._came_from: dict[int, int | None] = {}
         self._checked_area: dict[int, float] = {}
         self._closed: set[int] = set()
+        self._partners: dict[int, set[int]] = {}  # ASR -> the ASRs accepted cycles pair it with
         self._rejected: dict[tuple[int, int], float] = {}
         self._reported: set[tuple[int, int, str]] = set()
         self._odometry_edges: list[Edge] = []
@@ -153,6 +156,34 @@ class GlobalMap:
         if last is None or asr.area > last * (1.0 + self.params.regrowth_fraction):
             return self.check(asr_id, t)
         return []
+
+    def closure_depth(self, asr_id: int, polygon: shapely.Geometry | None = None) -> float:
+        """How well the accepted cycles of ASR ``asr_id`` still hold: the smallest depth (m, signed,
+        positive inside) of either centre inside the other ASR's polygon over every accepted cycle
+        pairing ``asr_id`` with another ASR, in the global frame as the ASRs are placed now.
+        ``polygon`` (``asr_id``'s frame): a polygon to test in place of its record's (a view about to
+        grow it), with the centre that polygon would give. +inf when no accepted cycle names it."""
+        partners = self._partners.get(asr_id)
+        if not partners:
+            return math.inf
+        asr = self.asrs[asr_id]
+        if polygon is None:
+            pa, ca = global_polygon(asr), global_centre(asr)
+        else:
+            pa = shapely.transform(polygon, lambda xy: transform_points(asr.origin, xy))
+            ca = tuple(transform_points(asr.origin, np.array(centre_of(polygon)))[0])
+        depth = math.inf
+        for k in partners:
+            other = self.asrs.get(k)
+            if other is None or len(other.boundary) < 3:
+                continue
+            pb, cb = global_polygon(other), global_centre(other)
+            depth = min(depth, depth_inside(pb, ca), depth_inside(pa, cb))
+        return depth
+
+    def _pair(self, a: int, b: int) -> None:
+        self._partners.setdefault(a, set()).add(b)
+        self._partners.setdefault(b, set()).add(a)
 
     def lookup(self, asr_id: int, exit_id: str):
         """The known transition through ``exit_id`` of ``asr_id`` (re-entry), or None."""
@@ -297,6 +328,7 @@ class GlobalMap:
             and a.shift <= p.verify_max_correction
             and abs(a.correction[2]) <= p.verify_max_rotation
             and a.violation <= p.verify_max_violation
+            and a.constraint >= p.verify_constrained
         )
 
     def _close(self, t, n, m, c, cm, overlap, reason, align: Alignment | None) -> list[Event]:
@@ -320,14 +352,43 @@ class GlobalMap:
             if g is not None:
                 self._set_exit_to(match, g.id, entry.src, overwrite=False)
         if good:
-            info = diagonal_info(p.loop_sigma_xy, p.loop_sigma_theta)
+            info = self._loop_info(align, dup_origin[2])
         else:
             info = diagonal_info(p.loop_sigma_unverified_xy, p.loop_sigma_unverified_theta)
         self._loop_edges.append(Edge(m, n, inverse(rel_nm), info))
         events = self._decide(t, n, m, c, cm, overlap, reason, True)
+        self._pair(n, m)
         if p.hindsight and reason != "hindsight":
             events += self._hindsight(t, n, m, align.correction if good else (0.0, 0.0, 0.0))
         return events
+
+    def _loop_info(self, align: Alignment, heading: float) -> np.ndarray:
+        """Information matrix (1/m², 1/rad²) of a verified loop edge, from what its alignment observed.
+
+        The edge's translation error is expressed in the duplicate's frame, whose global heading is
+        ``heading`` (rad). A surface constrains translation only along its normal: the alignment's
+        normal scatter has eigenvalue ``constraint`` along ``axis`` (global frame) and
+        1 - ``constraint`` across it. An axis with an eigenvalue of at least
+        ``loop_constraint_full`` gets ``loop_sigma_xy``; below that the information falls in
+        proportion, down to that of an unverified edge (``loop_sigma_unverified_xy``): along a
+        straight corridor the alignment says nothing about where along it the two ASRs lie, and
+        the edge must not claim ``loop_sigma_xy`` there (in the lab world such edges were 0.7-6 m
+        off along the corridor, and pulled the relaxed map and the re-entry hand-overs with them).
+        Rotation is observed by any wall: ``loop_sigma_theta``.
+        """
+        p = self.params
+        full, loose = 1.0 / p.loop_sigma_xy**2, 1.0 / p.loop_sigma_unverified_xy**2
+
+        def weight(eig: float) -> float:
+            return max(loose, full * min(1.0, max(eig, 0.0) / p.loop_constraint_full))
+
+        phi = align.axis - heading
+        c, s = math.cos(phi), math.sin(phi)
+        rot = np.array([[c, -s], [s, c]])
+        info = np.zeros((3, 3))
+        info[:2, :2] = rot @ np.diag([weight(align.constraint), weight(1.0 - align.constraint)]) @ rot.T
+        info[2, 2] = 1.0 / p.loop_sigma_theta**2
+        return info
 
     def _nearest_exit(self, parent: ASR, crossed, match: ASR):
         """The match's exit whose global midpoint is nearest the crossed exit's (None: no exits)."""
@@ -437,6 +498,7 @@ class GlobalMap:
         for r in self.cycles:
             self._reported.add((r.asr, r.matches, r.reason))
             if r.accepted and r.asr in self.asrs and r.matches in self.asrs:
+                self._pair(r.asr, r.matches)
                 rel = between(self.asrs[r.matches].origin, self.asrs[r.asr].origin)
                 self._loop_edges.append(
                     Edge(r.matches, r.asr, rel, diagonal_info(p.loop_sigma_xy, p.loop_sigma_theta))

@@ -396,7 +396,13 @@ class Mapper:
         was first matched (each plus ``duplicate_margin``, in the global frame both are placed in).
         Views through their doorways would otherwise swallow the next room or corridor into one of
         them, which then no longer is the place the closure said; the robot leaves the clipped ASR
-        as it leaves any ASR (through an exit, or where it is outside it), into a new one."""
+        as it leaves any ASR (through an exit, or where it is outside it), into a new one. And
+        (:meth:`_hold_closures`) no view may grow either so that its cycle's crosscheck fails."""
+        self._clip_closed_growth(b, before, pose)
+        self._hold_closures(b, before, pose)
+
+    def _clip_closed_growth(self, b: AsrBuilder, before: shapely.Polygon, pose: Pose) -> None:
+        """The duplicate_margin clip of :meth:`_keep_closed_places`."""
         a = b.asr
         match = self._asrs.get(a.duplicate_of) if a.duplicate_of is not None else None
         if match is not None and len(match.boundary) >= 3:
@@ -408,6 +414,20 @@ class Mapper:
         else:
             return
         b.clip_growth(before, area.buffer(self.params.duplicate_margin), pose[:2])
+
+    def _hold_closures(self, b: AsrBuilder, before: shapely.Polygon, pose: Pose) -> None:
+        """``CycleParams.hold_crosscheck``: refuse a view's growth of an ASR of an accepted cycle when
+        it would leave a centre less than ``crosscheck_margin`` inside the other polygon and less
+        deep than before (:meth:`GlobalMap.closure_depth`); the ASR keeps its polygon of ``before``."""
+        c = self.params.cycles
+        if not c.hold_crosscheck:
+            return
+        now = self._gm.closure_depth(b.asr.id, b.polygon)
+        if now >= c.crosscheck_margin:
+            return
+        if before.is_empty or now >= self._gm.closure_depth(b.asr.id, before):
+            return
+        b.clip_growth(before, before, pose[:2])
 
     # --- crossing exits (§4): small methods, meant to be extended --------------------------------
     def _crossed_exit(

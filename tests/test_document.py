@@ -63,7 +63,8 @@ def test_json_round_trip_is_exact():
 def test_a_loaded_map_exports_the_same_document_and_keeps_working():
     gm = _loop_map()
     doc = document_of(gm)
-    gm2 = load_globalmap(json.loads(json.dumps(doc)), CycleParams())
+    # ASR 2 is a straight corridor piece, which verify_constrained leaves unclosed (test_cycles).
+    gm2 = load_globalmap(json.loads(json.dumps(doc)), CycleParams(verify_constrained=0.0))
     assert document_of(gm2) == doc
     # Continue: the next ASR along the loop (east side again) is recognised as a revisit of ASR 2.
     box, frame, exits = LOOP[5]
