@@ -206,7 +206,13 @@ def find_covers(surf: Surfaces, p: MapperParams) -> Covers:
     occl[no_ret] = -1
     wide = np.hypot(*(b - a).T) >= p.passage_width
     label[no_ret] = np.where(wide[no_ret], EXIT, CLOSED)
-    return _select(Covers(a, b, label, lo, hi, occl))
+    # The robot standing in a doorway: the exit across it runs through its own footprint (within
+    # rear_closure of the robot centre). That is the way in or on, not a boundary of what it sees;
+    # truncated there, the view would be a sliver behind the robot, the next scan would cross its
+    # front and make another ASR, and so on until the robot cleared the doorway.
+    cx, cy, _ = closest_xy(np.zeros(len(a)), np.zeros(len(a)), np.stack([a, b], axis=1))
+    keep = ~((label == EXIT) & (np.hypot(cx, cy) < p.rear_closure))
+    return _select(Covers(a[keep], b[keep], label[keep], lo[keep], hi[keep], occl[keep]))
 
 
 def _select(c: Covers) -> Covers:

@@ -183,3 +183,18 @@ def test_a_laser_that_sees_nothing_neither_crashes_nor_invents_surfaces(ranges):
 def test_readings_that_are_not_readings_are_refused_with_the_field_named(make, message):
     with pytest.raises(ValueError, match=re.escape(message)):
         make()
+
+
+def test_crossing_a_doorway_makes_one_asr_not_one_per_scan(tmp_path):
+    """Standing in a doorway, the exit across it runs through the robot: it must not truncate the
+    view, or the new ASR's first view is a sliver behind the robot whose front the next scan
+    crosses, making another ASR every scan until the robot clears the doorway (6 in 0.6 s here)."""
+    from service.replay import replay
+    from tests.synthetic_runs import ROOMS_WAYPOINTS, drifting, path, two_rooms, write_carmen
+
+    truth = path(ROOMS_WAYPOINTS, laps=1.0, step=0.05)
+    log = tmp_path / "rooms-raw.clf"
+    write_carmen(log, two_rooms(), truth, drifting(truth))
+    created = [a["created"] for a in replay(log).document["asrs"]]
+    assert len(created) == 3, created  # room, corridor, room
+    assert min(np.diff(created)) > 2.0, created

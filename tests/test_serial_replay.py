@@ -28,8 +28,7 @@ from tests.synthetic_runs import ROOMS_WAYPOINTS, drifting, path, two_rooms, wri
 
 @pytest.fixture(scope="module")
 def rooms_log(tmp_path_factory):
-    """A synthetic raw log: 26 s straight through two rooms joined by a corridor (8 ASRs: the doorway
-    flicker, README "Simulation", adds five in the second doorway)."""
+    """A synthetic raw log: 26 s straight through two rooms joined by a corridor (3 ASRs)."""
     truth = path(ROOMS_WAYPOINTS, laps=1.0, step=0.05)
     p = tmp_path_factory.mktemp("serial") / "rooms-raw.clf"
     write_carmen(p, two_rooms(), truth, drifting(truth))
