@@ -285,7 +285,9 @@ class Mapper:
             tic = time.perf_counter()
             self.localiser.refine(pts.xy)  # a viewpoint's pose is inherited by the reference
             timing["refine"] = time.perf_counter() - tic
-            return self._add_view(scan.t, pts, self.pose)
+            # pipelined, a scan that has already spent its share leaves even the view to the next
+            busy = time.perf_counter() - self._scan_start > _SPARE
+            return self._add_view(scan.t, pts, self.pose, late=busy)
         return []
 
     # --- growing the current ASR -----------------------------------------------------------------
