@@ -182,6 +182,21 @@ def test_a_failed_exit_waits_for_the_rest_and_is_retried_a_bounded_number_of_tim
     assert planner.plan(view([a], 1)).kind == "done"
 
 
+def test_a_retry_round_that_runs_out_of_time_ends_exploration():
+    exits = [door(1, 0, (6, 1), (6, 3))]
+    a = room(1, 0, 0, 6, 4, edges=("surface", "exit", "surface", "surface"), exits=exits)
+    ex = Explorer(ExploreParams(retries=1, retry_budget=60.0))
+    ex.planner.failed(1, "1/0", (6.0, 2.0))
+    cmd = ex.step(view([a], 1), np.zeros((0, 2)), 100.0)  # nothing left but the failure: retry it
+    assert not cmd.done and ex.goal.kind == "exit" and ex.goal.exit == "1/0"
+    assert not ex.step(view([a], 1), np.zeros((0, 2)), 150.0).done  # within the round's 60 s
+    # past it: done (after any recovery manoeuvre already under way, a few seconds at most)
+    t = 161.0
+    while not (cmd := ex.step(view([a], 1), np.zeros((0, 2)), t)).done and t < 171.0:
+        t += 0.1
+    assert cmd.done and cmd.v == 0.0 and cmd.w == 0.0
+
+
 def test_a_duplicate_does_not_re_explore_exits_its_original_explored():
     orig = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3), to=2)])
     # The duplicate: the same room seen from a frame 0.3 m off (drift), its exit not crossed yet.
