@@ -402,11 +402,9 @@ class AsrBuilder:
             labels[ei[si < ne]] = "exit"  # an edge along both is an exit
         exits = self._exit_runs(v, labels)
         self._prune()
-        centre = centre_of(self.polygon)
-        rule = "centroid" if self.polygon.contains(self.polygon.centroid) else "point_on_surface"
         a = self.asr
         a.boundary, a.edges = v, labels.tolist()
-        a.centre, a.centre_rule = centre, rule
+        a.centre, a.centre_rule = centre_of(self.polygon)
         a.exits = self._keep_ids(exits)
 
     def _exit_runs(self, v: np.ndarray, labels: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:

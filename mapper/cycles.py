@@ -43,13 +43,15 @@ def global_centre(asr: ASR, origin: Pose | None = None) -> tuple[float, float]:
     return (float(p[0]), float(p[1]))
 
 
-def centre_of(polygon: shapely.Geometry) -> tuple[float, float]:
-    """An ASR's centre (method.md §3) from its polygon, in the polygon's frame (m): the centroid,
-    or a representative point inside when the centroid falls outside a concave polygon."""
+def centre_of(polygon: shapely.Geometry) -> tuple[tuple[float, float], str]:
+    """An ASR's centre (method.md §3) from its polygon, in the polygon's frame (m), and the rule
+    that gave it: the centroid (``"centroid"``), or a representative point inside when the
+    centroid falls outside a concave polygon (``"point_on_surface"``)."""
     c = polygon.centroid
-    if not polygon.contains(c):
-        c = polygon.point_on_surface()
-    return (float(c.x), float(c.y))
+    if polygon.contains(c):
+        return (float(c.x), float(c.y)), "centroid"
+    c = polygon.point_on_surface()
+    return (float(c.x), float(c.y)), "point_on_surface"
 
 
 def depth_inside(polygon: shapely.Geometry, point: tuple[float, float]) -> float:
@@ -213,7 +215,6 @@ def align_points(
     tree = cKDTree(q)
     k = min(4, len(q))
     rows = np.arange(len(p))
-    px, py = p[:, 0], p[:, 1]
     ramp = max(2, (2 * iterations) // 3)
     gates = np.geomspace(start_distance, inlier_distance, ramp).tolist()
     gates += [inlier_distance] * (iterations - ramp)
@@ -254,10 +255,7 @@ def align_points(
         m0, m1 = float(m[0]), float(m[1])
         c, s = math.cos(x0), math.sin(x0)
         tx, ty, th = compose((m0 + x1 - (c * m0 - s * m1), m1 + x2 - (s * m0 + c * m1), x0), (tx, ty, th))
-        c, s = math.cos(th), math.sin(th)
-        cur = np.empty_like(p)
-        cur[:, 0] = tx + c * px - s * py
-        cur[:, 1] = ty + s * px + c * py
+        cur = transform_points((tx, ty, th), p)
         if gate == inlier_distance and abs(x0) + abs(x1) + abs(x2) < 1e-6:
             break
     ok, j = nearest(cur, th, inlier_distance)

@@ -171,7 +171,7 @@ class GlobalMap:
             pa, ca = global_polygon(asr), global_centre(asr)
         else:
             pa = shapely.transform(polygon, lambda xy: transform_points(asr.origin, xy))
-            ca = tuple(transform_points(asr.origin, np.array(centre_of(polygon)))[0])
+            ca = tuple(transform_points(asr.origin, np.array(centre_of(polygon)[0]))[0])
         depth = math.inf
         for k in partners:
             other = self.asrs.get(k)

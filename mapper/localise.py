@@ -273,12 +273,8 @@ class Localiser:
         tree = self._ref_tree
         kf = self.kf
         x, y, th = float(kf.x[0]), float(kf.x[1]), float(kf.x[2])
-        px, py = xy[:, 0], xy[:, 1]
-        cur = np.empty_like(xy)
         for gate in np.geomspace(p.refine_start, p.refine_inlier, p.refine_iterations).tolist():
-            c, s = math.cos(th), math.sin(th)
-            cur[:, 0] = x + c * px - s * py
-            cur[:, 1] = y + s * px + c * py
+            cur = transform_points((x, y, th), xy)
             d, j = tree.query(cur, distance_upper_bound=gate)
             ok = d < np.inf
             if np.count_nonzero(ok) < 20:
@@ -293,9 +289,7 @@ class Localiser:
             x, y, th = compose((tx, ty, rot), (x, y, th))
             if gate == p.refine_inlier and abs(rot) + abs(tx) + abs(ty) < 1e-5:
                 break
-        c, s = math.cos(th), math.sin(th)
-        cur[:, 0] = x + c * px - s * py
-        cur[:, 1] = y + s * px + c * py
+        cur = transform_points((x, y, th), xy)
         d, j = tree.query(cur, distance_upper_bound=p.refine_inlier)
         ok = d < np.inf
         inliers = float(ok.mean())
@@ -303,13 +297,14 @@ class Localiser:
         if inliers < p.refine_min_inliers:
             return Match(pose, 1.0, inliers, 0.0, False, "refine: inliers")
         # point-to-plane information of the pairs whose reference point lies on a surface
-        ang = self._ref_angles[j[ok]]
+        j = j[ok]
+        ang = self._ref_angles[j]
         on = np.isfinite(ang)
         if np.count_nonzero(on) < 10:
             return Match(pose, 1.0, inliers, 0.0, False, "refine: no surfaces")
         nx, ny = -np.sin(ang[on]), np.cos(ang[on])
-        pts = cur[ok][on]
-        res = (pts[:, 0] - ref[j[ok]][on][:, 0]) * nx + (pts[:, 1] - ref[j[ok]][on][:, 1]) * ny
+        pts, q = cur[ok][on], ref[j[on]]
+        res = (pts[:, 0] - q[:, 0]) * nx + (pts[:, 1] - q[:, 1]) * ny
         lever = (pts[:, 0] - x) * ny - (pts[:, 1] - y) * nx
         jac = np.stack([nx, ny, lever])  # (3, N): d residual / d(x, y, theta)
         info = jac @ jac.T
@@ -320,15 +315,9 @@ class Localiser:
             r = sigma2 * np.linalg.inv(info + 1e-9 * np.eye(3))
         except np.linalg.LinAlgError:
             return Match(pose, 1.0, inliers, rms, False, "refine: degenerate")
-        r = 0.5 * (r + r.T)
-        z = np.array([x, y, float(kf.x[2]) + wrap(th - float(kf.x[2]))])
-        innov = z - kf.x
-        innov[2] = wrap(float(innov[2]))
-        d2 = _mahalanobis2(innov, kf.P + r)
-        if d2 > p.gate_chi2:
+        d2 = self._fuse(np.array([x, y, float(kf.x[2]) + wrap(th - float(kf.x[2]))]), 0.5 * (r + r.T))
+        if d2 is not None:
             return Match(pose, 1.0, inliers, rms, False, f"refine: gate (d2 {d2:.1f})")
-        kf.update(z, R=r)
-        kf.x[2] = wrap(float(kf.x[2]))
         return Match(pose, 1.0, inliers, rms, True, "refined")
 
     def correct(self, xy: np.ndarray) -> Match | None:
@@ -387,15 +376,25 @@ class Localiser:
         r[:2, :2] = (ra * var_uv) @ ra.T
         r[2, 2] = (p.match_sigma_theta / q_th) ** 2
         z = np.array([x + corr[0], y + corr[1], th + wrap(th_m - th)])
+        pose_m = (float(z[0]), float(z[1]), wrap(float(z[2])))
+        d2 = self._fuse(z, r)
+        if d2 is not None:
+            return Match(pose_m, q_th, qs[0], qs[1], False, f"gate (d2 {d2:.1f})")
+        return Match(pose_m, q_th, qs[0], qs[1], True, "ok")
+
+    def _fuse(self, z: np.ndarray, r: np.ndarray) -> float | None:
+        """Fuse the measured pose ``z`` (ASR frame, its angle unwrapped near the state's) with
+        covariance ``r`` unless the innovation fails the χ² gate; None when fused, else the squared
+        Mahalanobis distance that failed."""
+        kf = self.kf
         innov = z - kf.x
         innov[2] = wrap(float(innov[2]))
         d2 = _mahalanobis2(innov, kf.P + r)
-        pose_m = (float(z[0]), float(z[1]), wrap(float(z[2])))
-        if d2 > p.gate_chi2:
-            return Match(pose_m, q_th, qs[0], qs[1], False, f"gate (d2 {d2:.1f})")
+        if d2 > self.p.gate_chi2:
+            return d2
         kf.update(z, R=r)
         kf.x[2] = wrap(float(kf.x[2]))
-        return Match(pose_m, q_th, qs[0], qs[1], True, "ok")
+        return None
 
 
 def _densify(scans: list[tuple[np.ndarray, np.ndarray]], spacing: float) -> tuple[np.ndarray, np.ndarray]:
