@@ -42,25 +42,29 @@ def rpe(est, truth, d: float) -> float:
 
 @pytest.fixture(scope="module")
 def csail_run(shared_data):
-    truth = {
-        round(r.t, 6): r.pose
-        for r in CarmenReader(shared_data / "csail-robotlaser1.log.gz")
-        if isinstance(r, LaserRecord)
-    }
     m = Mapper(LOG_PARAMS)
+    log, truth = shared_data / "mit-csail.clf.gz", shared_data / "csail-robotlaser1.log.gz"
+    est, raw, gt = run_against_truth(m, log, truth, 6)
+    return est, raw, gt, m
+
+
+def run_against_truth(m: Mapper, log, truth_log, digits: int):
+    """Feed ``log`` to ``m``; at the scans the truth log also has (timestamps equal to ``digits``
+    decimals): the mapper's global poses, the raw odometry poses and the true poses."""
+    truth = {round(r.t, digits): r.pose for r in CarmenReader(truth_log) if isinstance(r, LaserRecord)}
     est, raw, gt, odo = [], [], [], None
-    for item in mapper_inputs(shared_data / "mit-csail.clf.gz"):
+    for item in mapper_inputs(log):
         if isinstance(item, Odometry):
             m.add_odometry(item)
             odo = item.pose
             continue
         m.add_scan(item)
-        k = round(item.t, 6)
+        k = round(item.t, digits)
         if k in truth:
             est.append(m.global_pose)
             raw.append(odo)
             gt.append(truth[k])
-    return est, raw, gt, m
+    return est, raw, gt
 
 
 def test_truth_matches_686_raw_scans(csail_run):
@@ -131,31 +135,14 @@ def test_along_a_featureless_corridor_the_match_leaves_the_along_axis_to_odometr
     assert abs(loc.pose[1]) < 0.03
 
 
-def _run_against_truth(log, truth_log, params: MapperParams):
-    """Global poses of a Mapper (cycle closing off) at the scans the truth log also has."""
-    truth = {round(r.t, 3): r.pose for r in CarmenReader(truth_log) if isinstance(r, LaserRecord)}
-    m = Mapper(dataclasses.replace(params, cycles=dataclasses.replace(params.cycles, enabled=False)))
-    est, gt = [], []
-    for item in mapper_inputs(log):
-        if isinstance(item, Odometry):
-            m.add_odometry(item)
-            continue
-        m.add_scan(item)
-        k = round(item.t, 3)
-        if k in truth:
-            est.append(m.global_pose)
-            gt.append(truth[k])
-    return est, gt
-
-
 @pytest.mark.slow
 def test_viewpoint_refinement_lowers_the_intel_drift(shared_data):
     """Intel raw's odometry turns ~0.65°/s too little; the histogram matches alone let each ASR drift
     about 2° (README, "Cycle closing"). Refining the viewpoints must lower the error over 20 m."""
     log, truth = shared_data / "intel-raw-first5505.clf.gz", shared_data / "intel-corrected.log.gz"
-    params = MapperParams(laser_x=0.0, laser_y=0.0)
-    est, gt = _run_against_truth(log, truth, params)
-    plain, _ = _run_against_truth(log, truth, dataclasses.replace(params, refine=False))
+    off = dataclasses.replace(LOG_PARAMS, cycles=dataclasses.replace(LOG_PARAMS.cycles, enabled=False))
+    est, _, gt = run_against_truth(Mapper(off), log, truth, 3)
+    plain, _, _ = run_against_truth(Mapper(dataclasses.replace(off, refine=False)), log, truth, 3)
     for d in (1.0, 5.0, 20.0):
         print(f"Intel raw RPE over {d:.0f} m: refined {rpe(est, gt, d):.3f} m, histogram only "
               f"{rpe(plain, gt, d):.3f} m ({len(gt)} truth scans)")
