@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
-from scipy.spatial import cKDTree
 
+from mapper.nearest import point_tree
 from mapper.se2 import Pose, compose, transform_points, wrap
 from mapper.types import ASR
 
@@ -212,7 +212,7 @@ def align_points(
     """
     if len(p) < 10 or len(q) < 10:
         return None
-    tree = cKDTree(q)
+    tree = point_tree(q)
     k = min(4, len(q))
     rows = np.arange(len(p))
     ramp = max(2, (2 * iterations) // 3)

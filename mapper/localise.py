@@ -61,8 +61,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from filterpy.kalman import KalmanFilter
-from scipy.spatial import cKDTree
 
+from mapper.nearest import point_tree
 from mapper.params import MapperParams
 from mapper.se2 import Pose, compose, transform_points, wrap
 
@@ -269,7 +269,7 @@ class Localiser:
             return None
         ref = self._ref_points
         if self._ref_tree is None:
-            self._ref_tree = cKDTree(ref)
+            self._ref_tree = point_tree(ref)
         tree = self._ref_tree
         kf = self.kf
         x, y, th = float(kf.x[0]), float(kf.x[1]), float(kf.x[2])
