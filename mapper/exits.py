@@ -25,6 +25,7 @@ All candidates of all gaps are evaluated in a few broadcast numpy operations.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,6 +48,8 @@ class Covers:
     ``a``, ``b`` (N, 2): the cover's clockwise and counter-clockwise ends; ``label`` (N,) one of
     ``exit``/``surface``/``unknown``; ``lo``, ``hi`` (N,): the sweep positions of a and b (see module
     docstring); ``occluding`` (N,) which end is the occluding end P (0: a, 1: b; -1 for no-return gaps).
+    ``through_robot``: how many exits were left out because they ran through the robot (it stands
+    in that gap, see :func:`find_covers`).
     """
 
     a: np.ndarray
@@ -55,6 +58,7 @@ class Covers:
     lo: np.ndarray
     hi: np.ndarray
     occluding: np.ndarray
+    through_robot: int = 0
 
     def __len__(self) -> int:
         return len(self.a)
@@ -212,7 +216,8 @@ def find_covers(surf: Surfaces, p: MapperParams) -> Covers:
     # front and make another ASR, and so on until the robot cleared the doorway.
     cx, cy, _ = closest_xy(np.zeros(len(a)), np.zeros(len(a)), np.stack([a, b], axis=1))
     keep = ~((label == EXIT) & (np.hypot(cx, cy) < p.rear_closure))
-    return _select(Covers(a[keep], b[keep], label[keep], lo[keep], hi[keep], occl[keep]))
+    c = _select(Covers(a[keep], b[keep], label[keep], lo[keep], hi[keep], occl[keep]))
+    return c if keep.all() else dataclasses.replace(c, through_robot=int(np.count_nonzero(~keep)))
 
 
 def _select(c: Covers) -> Covers:

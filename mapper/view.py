@@ -35,6 +35,8 @@ class View:
     to vertex i+1 (cyclically). ``polygon``: the same ring as a valid shapely polygon (the largest
     part if the raw ring self-intersected). ``surfaces`` (S, 2, 2): visible surface parts and closed
     gaps (what the boundary may follow as ``surface``); ``exits`` (E, 2, 2): the exits.
+    ``in_doorway``: the robot stood in a gap wide enough to pass (the exit across it ran through its
+    centre and was left out, :func:`mapper.exits.find_covers`), so the view is not bounded there.
     """
 
     vertices: np.ndarray
@@ -42,6 +44,7 @@ class View:
     polygon: shapely.Polygon
     surfaces: np.ndarray
     exits: np.ndarray
+    in_doorway: bool = False
 
 
 def build_view(surf: Surfaces, p: MapperParams, covers: Covers | None = None) -> View:
@@ -89,7 +92,7 @@ def build_view(surf: Surfaces, p: MapperParams, covers: Covers | None = None) ->
         surfaces = np.concatenate([surfaces, np.stack([covers.a[closed], covers.b[closed]], axis=1)])
     ex = covers.label == EXIT
     exits = np.stack([covers.a[ex], covers.b[ex]], axis=1) if ex.any() else np.zeros((0, 2, 2))
-    return View(v, labels, valid_polygon(v), surfaces, exits)
+    return View(v, labels, valid_polygon(v), surfaces, exits, covers.through_robot > 0)
 
 
 def _drop_repeats(v: np.ndarray, labels: list[str]) -> tuple[np.ndarray, list[str]]:
