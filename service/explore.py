@@ -133,6 +133,11 @@ class ExploreParams:
     progress_min: float = 0.15
     #: s. A goal whose way stays shut by the safety stop this long is given up.
     blocked_time: float = 4.0
+    #: s. A stall reported within this of a change of the motion's direction belongs to the motion
+    #: before: the P2OS stall bits come with the 10 Hz SIP, and a robot pressed against a wall still
+    #: reports the stall in the first SIP after it was told to pull away. Taken as the new move's,
+    #: every escape move was dropped at once (aliasing seed 2 sat wedged in a corner for 200 s).
+    stall_grace: float = 0.3
     #: s. A goal not achieved in this time is given up (bounds exploration whatever happens).
     goal_timeout: float = 120.0
     #: m, m/s, rad. Recovery: move ``recovery_distance`` at ``recovery_speed``, then turn ``recovery_turn``.
@@ -834,13 +839,15 @@ def free_distance(points: np.ndarray, headings: np.ndarray, p: ExploreParams, ma
     return np.where(blocking, along - p.front, np.inf).min(axis=1)
 
 
-def safety_limit(points: np.ndarray, v: float, p: ExploreParams) -> float:
-    """The forward speed (m/s) allowed by the laser: 0 when a point in the robot's path is within
+def safety_limit(points: np.ndarray, v: float, p: ExploreParams, margin: float | None = None) -> float:
+    """The forward speed (m/s) allowed by the laser: 0 when a point in the robot's path (half width
+    + ``margin`` m, default ``avoid_margin``, either side of its centreline, robot frame) is within
     ``stop_distance`` of the laser, ramping up over ``slow_zone`` beyond it. Reverse motion is not
     limited here (the laser cannot see behind)."""
     if v <= 0.0 or not len(points):
         return v
-    ahead = (np.abs(points[:, 1]) < p.half_width + p.avoid_margin) & (points[:, 0] > p.laser_x)
+    margin = p.avoid_margin if margin is None else margin
+    ahead = (np.abs(points[:, 1]) < p.half_width + margin) & (points[:, 0] > p.laser_x)
     if not ahead.any():
         return v
     gap = float((points[ahead, 0] - p.laser_x).min())
@@ -869,6 +876,8 @@ class Explorer:
         self._memory: deque[tuple[float, Pose, np.ndarray]] = deque()
         self._near = np.zeros((0, 2))
         self._last: Command | None = None
+        self._motion: tuple[float, float] = (0.0, 0.0)  # signs of the last command's v and w
+        self._motion_since = -math.inf  # when the motion last changed direction (s)
         self._unjams: list[float] = []
         self._asr: ASR | None = None
         self._attempts: dict[tuple, tuple[int, float]] = {}
@@ -958,7 +967,11 @@ class Explorer:
         """The command for now. ``points``: latest scan returns (N, 2) in the robot frame (m);
         ``stalled``: the robot reports stalled wheels (P2OS stall bits)."""
         self._near = self._remember(view, points, t)
+        stalled = stalled and t - self._motion_since >= self.p.stall_grace
         self._last = self._command(view, points, t, stalled)
+        motion = (float(np.sign(self._last.v)), float(np.sign(self._last.w)))
+        if motion != self._motion:
+            self._motion, self._motion_since = motion, t
         return self._last
 
     def _remember(self, view: MapView, points: np.ndarray, t: float) -> np.ndarray:
@@ -1329,4 +1342,7 @@ class Explorer:
             self._recovery_until = t + duration
             self._recovery_cmd = (v, w)
         v, w = self._recovery_cmd
-        return Command(safety_limit(points, v, self.p), w, "recovering")
+        # Only what the body itself would hit stops a recovery move: a robot pressed against a wall
+        # it stands parallel to has that wall within the avoidance margin, and with the margin
+        # every move was refused (aliasing seed 2: wedged in a corner for the last 200 s).
+        return Command(safety_limit(points, v, self.p, margin=0.0), w, "recovering")

@@ -393,3 +393,34 @@ def test_an_exit_chosen_again_every_few_seconds_is_given_up_after_max_attempts()
             given_up_at = float(t)
     assert given_up_at is not None
     assert given_up_at >= P.max_attempts * P.attempt_spacing
+
+
+def test_a_stall_reported_right_after_the_motion_changed_belongs_to_the_motion_before():
+    """P2OS reports stall bits with the 10 Hz SIP: a robot that was pushing into a wall still reports
+    the stall in the first SIP after it was told to pull away. That stall must not end the escape
+    move at once (aliasing seed 2: every escape move was dropped so, and the robot sat wedged in a
+    corner for 200 s)."""
+    a = room(1, -5, -5, 5, 5, edges=("surface", "unknown", "surface", "surface"))
+    ex = Explorer()
+    v = view([a], 1, pose=(0.0, 0.0, 0.0))
+    first = ex.step(v, np.zeros((0, 2)), 0.0)
+    assert first.v != 0.0 or first.w != 0.0
+    escape = ex.step(v, np.zeros((0, 2)), 1.0, stalled=True)  # the motion jammed: an escape move
+    assert escape.status == "recovering"
+    again = ex.step(v, np.zeros((0, 2)), 1.1, stalled=True)  # the stall bits of the jammed motion
+    assert (again.v, again.w) == (escape.v, escape.w)
+    later = ex.step(v, np.zeros((0, 2)), 1.1 + P.stall_grace + 0.1, stalled=True)  # this move jams too
+    assert (later.v, later.w) != (escape.v, escape.w)
+
+
+def test_a_recovery_move_may_pull_away_along_a_wall_beside_the_robot():
+    """Pressed against a wall it stands parallel to (0.24 m from the centre: outside the body, inside
+    the avoidance margin), the robot may still drive along it to get clear; the normal safety stop,
+    with its margin, would refuse."""
+    wall = np.array([[x, 0.24] for x in np.linspace(0.05, 2.0, 40)])
+    assert safety_limit(wall, 0.15, P) == 0.0
+    assert safety_limit(wall, 0.15, P, margin=0.0) == 0.15
+    ex = Explorer()
+    ex._queue([(2.0, 0.15, 0.0)], 0.0)  # a recovery move straight ahead
+    cmd = ex.step(view([room(1, -5, -5, 5, 5)], 1, pose=(0.0, 0.0, 0.0)), wall, 0.0)
+    assert cmd.status == "recovering" and cmd.v == 0.15
