@@ -146,10 +146,13 @@ class ExploreParams:
     recovery_turn: float = 1.2
     #: How many times exits that failed are all forgotten and tried again before exploration ends.
     retries: int = 2
-    #: s. A retry round ends (and with it exploration) after this long. Most exits still open when
-    #: the first round ends point into a wall or a table (in `lab` the wall 0-0.3 m behind them);
-    #: driven at one by one they ran out the hour in `lab` seeds 1-2 and `aliasing`. Without retries
-    #: `office` seed 0 and `aliasing` seed 2 missed a room that a retry round finds.
+    #: s. A retry round ends (and with it exploration) after this long without new space (an ASR
+    #: whose centre no earlier ASR covers: a retried exit that led somewhere new restarts the
+    #: clock). Most exits still open when the first round ends point into a wall or a table (in
+    #: `lab` the wall 0-0.3 m behind them); driven at one by one they ran out the hour in `lab`
+    #: seeds 1-2 and `aliasing`. Without retries `office` seed 0 and `aliasing` seed 2 missed a room
+    #: that a retry round finds. Without the restart, `lab` seed 3 ended while the retry round was
+    #: still finding new ASRs, three regions unentered.
     retry_budget: float = 300.0
     #: An exit (or backtrack through it) chosen this many times in one round fails: the robot
     #: goes round in a loop (its far side sends it back, the mapper flips between two ASRs).
@@ -891,6 +894,7 @@ class Explorer:
         self._path_t = -math.inf
         self.finished = False
         self._retry_round, self._retry_start = 0, 0.0  # the planner's retry round, and when it began
+        self._newest_asr = -1  # the newest ASR id _new_space has seen
         self.counts = {"goals": 0, "unknown": 0, "exits": 0, "backtracks": 0, "stuck": 0, "failed": 0,
                        "unjam": 0}
 
@@ -1037,7 +1041,7 @@ class Explorer:
                 goal = self.planner.plan(view)
             self._set_goal(goal, t)
         mem = self.planner.memory
-        if mem.retries != self._retry_round:
+        if mem.retries != self._retry_round or self._new_space(view):
             self._retry_round, self._retry_start = mem.retries, t
         if mem.retries and self.goal is not None and self.goal.kind != "done" and (
             t - self._retry_start > self.p.retry_budget
@@ -1065,6 +1069,23 @@ class Explorer:
                 return Command(0.0, 0.0, "in the new ASR")
             return self._drive_to(g.target, pose, points, t, "into the new ASR")  # type: ignore[arg-type]
         return self._traverse(g, pose, points, t)
+
+    def _new_space(self, view: MapView) -> bool:
+        """Whether the map has gained an ASR whose centre (global frame) lies inside no earlier ASR
+        since the last call: new space, not another ASR of space already known."""
+        ids = sorted(view.asrs)
+        fresh = [k for k in ids if k > self._newest_asr]
+        if not fresh:
+            return False
+        self._newest_asr = ids[-1]
+        found = False
+        for k in fresh:
+            a = view.asrs[k]
+            c = transform_points(a.origin, np.array([a.centre]))[0]
+            found = found or not any(
+                shapely.contains_xy(shapely.Polygon(transform_points(o.origin, o.boundary)), c[0], c[1])
+                for o in view.asrs.values() if o.id < k and len(o.boundary) >= 3)
+        return found
 
     def _settle(self, view: MapView) -> Goal | None:
         """After a crossing (the goal was an exit of another ASR), the point beyond that exit in the

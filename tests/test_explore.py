@@ -197,6 +197,26 @@ def test_a_retry_round_that_runs_out_of_time_ends_exploration():
     assert cmd.done and cmd.v == 0.0 and cmd.w == 0.0
 
 
+def test_new_space_found_in_a_retry_round_restarts_its_clock():
+    """A retried exit that leads somewhere new (an ASR whose centre no earlier ASR covers) earns the
+    round another retry_budget; another ASR of known space does not."""
+    exits = [door(1, 0, (6, 1), (6, 3))]
+    a = room(1, 0, 0, 6, 4, edges=("surface", "exit", "surface", "surface"), exits=exits)
+    known = room(2, 1, 1, 5, 3)  # inside room 1: known space
+    new = room(3, 20, 0, 24, 4)  # far away: new space
+    # (the robot never moves here: no stuck detection or goal timeout, only the budget ends it)
+    ex = Explorer(ExploreParams(retries=1, retry_budget=60.0, stuck_time=1e9, goal_timeout=1e9))
+    ex.planner.failed(1, "1/0", (6.0, 2.0))
+    assert not ex.step(view([a], 1), np.zeros((0, 2)), 100.0).done  # the retry round begins
+    assert not ex.step(view([a, known], 1), np.zeros((0, 2)), 120.0).done
+    assert not ex.step(view([a, known, new], 1), np.zeros((0, 2)), 150.0).done  # new space: clock restarts
+    t = 165.0  # past the first 60 s, within 60 s of the new space
+    assert not ex.step(view([a, known, new], 1), np.zeros((0, 2)), t).done
+    while not (cmd := ex.step(view([a, known, new], 1), np.zeros((0, 2)), t)).done and t < 225.0:
+        t += 0.5
+    assert cmd.done and t > 210.0
+
+
 def test_a_duplicate_does_not_re_explore_exits_its_original_explored():
     orig = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3), to=2)])
     # The duplicate: the same room seen from a frame 0.3 m off (drift), its exit not crossed yet.
