@@ -7,7 +7,8 @@ every exit of the current ASR is explored it *backtracks* along the topological 
 ASR (fewest metres between centres in the global frame) with an unexplored exit; when the
 topological map offers no way there (the way out failed), it heads across the current ASR for the
 nearest unexplored exit of any ASR in the global frame (``goto``); when none is left, the exits that
-failed are retried (``retries`` rounds, each at most ``retry_budget`` seconds), then it is *done*.
+failed are retried (``retries`` rounds, each ending after ``retry_budget`` seconds without new
+space), then it is *done*.
 An exit is explored when it leads somewhere (``to`` is set, or a link starts from it; a link naming
 an exit the ASR no longer has is travelled through the other side's), when crossing it failed, when
 it was seen shut (a surface right behind it in a scan: :meth:`Planner.shut_exits`), when the space
