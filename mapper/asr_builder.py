@@ -37,7 +37,7 @@ import numpy as np
 import shapely
 
 from mapper.cycles import centre_of
-from mapper.exits import closest_xy
+from mapper.exits import segment_distance
 from mapper.params import MapperParams
 from mapper.se2 import Pose, transform_points
 from mapper.types import ASR, Exit
@@ -69,8 +69,7 @@ def _pairs_within(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.ndarra
     ok = (y >= lo[si, 1]) & (y <= hi[si, 1])
     pi, si = pi[ok], si[ok]
     px, py = p[pi, 0], p[pi, 1]
-    qx, qy, _ = closest_xy(px, py, seg[si])
-    d = np.hypot(qx - px, qy - py)
+    d = segment_distance(px, py, seg[si])
     near = d < tol
     return pi[near], si[near], d[near]
 

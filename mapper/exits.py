@@ -89,6 +89,12 @@ def closest_xy(px: np.ndarray, py: np.ndarray, seg: np.ndarray) -> tuple[np.ndar
     return ax + t * abx, ay + t * aby, t
 
 
+def segment_distance(px: np.ndarray, py: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """Distance (m) from points (px, py) (...) to segments (..., 2, 2), all in one frame."""
+    qx, qy, _ = closest_xy(px, py, seg)
+    return np.hypot(qx - px, qy - py)
+
+
 def _shortest(
     seg: np.ndarray, o: np.ndarray, pp: np.ndarray, gap: np.ndarray, right: np.ndarray, p: MapperParams
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -214,8 +220,8 @@ def find_covers(surf: Surfaces, p: MapperParams) -> Covers:
     # rear_closure of the robot centre). That is the way in or on, not a boundary of what it sees;
     # truncated there, the view would be a sliver behind the robot, the next scan would cross its
     # front and make another ASR, and so on until the robot cleared the doorway.
-    cx, cy, _ = closest_xy(np.zeros(len(a)), np.zeros(len(a)), np.stack([a, b], axis=1))
-    keep = ~((label == EXIT) & (np.hypot(cx, cy) < p.rear_closure))
+    at_robot = segment_distance(np.zeros(len(a)), np.zeros(len(a)), np.stack([a, b], axis=1))
+    keep = ~((label == EXIT) & (at_robot < p.rear_closure))
     c = _select(Covers(a[keep], b[keep], label[keep], lo[keep], hi[keep], occl[keep]))
     return c if keep.all() else dataclasses.replace(c, through_robot=int(np.count_nonzero(~keep)))
 

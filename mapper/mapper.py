@@ -62,7 +62,7 @@ import shapely
 from mapper.asr_builder import AsrBuilder
 from mapper.document import document_of, load_globalmap
 from mapper.events import AsrCreated, AsrUpdated, Event, ExitCrossed
-from mapper.exits import closest_xy, find_covers
+from mapper.exits import find_covers, segment_distance
 from mapper.globalmap import GlobalMap
 from mapper.lines import ScanPoints, extract_surfaces, scan_points
 from mapper.localise import Localiser
@@ -76,6 +76,11 @@ _ODOM_KEEP = 4096  # odometry readings kept for interpolation (minutes at 20 Hz)
 #: s. Pipelined, a scan that has spent less than this relabels the ASR its union grew (a view's
 #: last stage) before returning; a busier scan leaves it to the next one with time to spare.
 _SPARE = 1.5e-3
+
+
+def _segments(exits: list[Exit]) -> np.ndarray:
+    """The exits' segments (E, 2, 2), their ASR's frame (m)."""
+    return np.array([[e.a, e.b] for e in exits], dtype=float)
 
 
 def _outward_x(e: Exit) -> float:
@@ -308,17 +313,19 @@ class Mapper:
         """Take this scan as a view of the current ASR from ``pose``: now, or pipelined (``defer``;
         ``late``: even its surfaces, exits and view wait for the next scan). ``walked``: a view on
         the way (not an ASR's first, nor a re-entry's), which is not unioned when taken standing in
-        a doorway (:meth:`_union_ok`)."""
+        a doorway (:meth:`_at_exit`)."""
         p = self.params
         pipelined = defer and self.defer_views
-        view = None if late and pipelined else self._view(pts)
+        now = not (late and pipelined)  # else the view, and whether it may be unioned, wait
+        at_exit = now and walked and self._at_exit(self.current, pose)  # not unioned: no view needed
+        view = self._view(pts) if now and not at_exit else None
         self.localiser.add_reference(pts.xy, pose)
         refs = self._refs.setdefault(self.current, [])
         refs.append((pts.xy, pose))
         if len(refs) > p.reference_scans + 1:
             del refs[1]  # the first view anchors the frame, as in the localiser
         self._last_view = pose
-        if walked and view is not None and not self._union_ok(view, self.current, pose):
+        if at_exit or (walked and view is not None and view.in_doorway):
             return []
         self._pending = (t, self.current, pts, pose, view, walked)
         if pipelined:
@@ -328,13 +335,13 @@ class Mapper:
         out, self._outbox = self._outbox[before:], self._outbox[:before]
         return out
 
-    def _union_ok(self, view: View, aid: int, pose: Pose) -> bool:
-        """Whether a view on the way, taken from ``pose`` (ASR ``aid``'s frame), may be unioned into
-        ``aid``: not when it was taken standing in a doorway, that is with the scan's own cover of
-        a gap running through the robot (``view.in_doorway``), or with the robot centre within
-        ``rear_closure`` of one of ``aid``'s exits (at the doorway's line the jambs are beside or
-        behind the laser, and the scan shows no gap at all).
+    def _at_exit(self, aid: int, pose: Pose) -> bool:
+        """Whether the robot centre (``pose``, ASR ``aid``'s frame) lies within ``rear_closure`` of
+        one of ``aid``'s exits: standing in a doorway, where a view on the way is not unioned.
 
+        A view on the way is not unioned when taken standing in a doorway: this, or the scan's own
+        cover of a gap running through the robot (``View.in_doorway``; at the doorway's line the
+        jambs are beside or behind the laser and the scan may show no gap at all, hence both).
         From a doorway the view sees into the space beyond, unbounded. In the simulated office
         (seed 2) such a view, 3 cm before the doorway into room 3, grew the corridor's ASR over the
         room; the robot never crossed out of it, and exploration ended with 4 of 6 rooms unseen. A
@@ -342,14 +349,10 @@ class Mapper:
         crossed. The view still joins the localisation reference (postponing the whole viewpoint
         instead, refinement included, raised Intel raw's ASR frame error from 1.1 to 1.8 m). An
         ASR's first view and a re-entry's are taken in the doorway by definition, and unioned."""
-        if view.in_doorway:
-            return False
-        p = self.params
         exits = self._asrs[aid].exits
-        if not exits:
-            return True
-        qx, qy, _ = closest_xy(pose[0], pose[1], np.array([[e.a, e.b] for e in exits], dtype=float))
-        return bool(np.min(np.hypot(qx - pose[0], qy - pose[1])) >= p.rear_closure)
+        return bool(exits) and bool(
+            np.min(segment_distance(pose[0], pose[1], _segments(exits))) < self.params.rear_closure
+        )
 
     def _view(self, pts: ScanPoints) -> View:
         """Surfaces, exits and the truncated view of one scan (robot frame)."""
@@ -390,8 +393,10 @@ class Mapper:
         t, aid, pts, pose, view, walked = self._pending
         self._pending = None
         if view is None:
+            if walked and self._at_exit(aid, pose):
+                return
             view = self._view(pts)
-            if walked and not self._union_ok(view, aid, pose):
+            if walked and view.in_doorway:
                 return
         tic = time.perf_counter()
         builder = self._builders[aid]
@@ -617,8 +622,7 @@ class Mapper:
         exits = [e for e in self._asrs[asr].exits if _outward_x(e) <= 0.5]
         if not exits:
             return None
-        qx, qy, _ = closest_xy(at[0], at[1], np.array([[e.a, e.b] for e in exits], dtype=float))
-        d = np.hypot(qx - at[0], qy - at[1])
+        d = segment_distance(at[0], at[1], _segments(exits))
         k = int(np.argmin(d))  # the first of equals, as before
         return exits[k] if d[k] < 2.0 * self.params.passage_width else None
 

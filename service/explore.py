@@ -1079,14 +1079,13 @@ class Explorer:
         if not fresh:
             return False
         self._newest_asr = ids[-1]
-        found = False
+        polygons = self.planner._known_polygons(view)  # global frame, cached for the planner
         for k in fresh:
             a = view.asrs[k]
             c = transform_points(a.origin, np.array([a.centre]))[0]
-            found = found or not any(
-                shapely.contains_xy(shapely.Polygon(transform_points(o.origin, o.boundary)), c[0], c[1])
-                for o in view.asrs.values() if o.id < k and len(o.boundary) >= 3)
-        return found
+            if not any(shapely.contains_xy(g, c[0], c[1]) for o, g in polygons if o < k):
+                return True
+        return False
 
     def _settle(self, view: MapView) -> Goal | None:
         """After a crossing (the goal was an exit of another ASR), the point beyond that exit in the
