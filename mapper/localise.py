@@ -175,8 +175,8 @@ class Localiser:
         """Start over in a new ASR frame at ``pose`` (its creating scan: the frame's origin)."""
         self.kf.x = np.array(pose, dtype=float)
         self.kf.P = np.diag([1e-6, 1e-6, 1e-8])
-        # (points, directions, surface angles), ASR frame
-        self._refs: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        # (points, directions, surface angles, densified points, their surface angles), ASR frame
+        self._refs: list[tuple[np.ndarray, ...]] = []
         self._ref_ready = False
 
     @property
@@ -221,20 +221,22 @@ class Localiser:
             pts = transform_points(pose, xy)
             if self._refs and len(self._refs) > self.p.reference_scans:
                 del self._refs[1]  # keep the first (anchors the frame) and the latest ones
-            self._refs.append((pts, *_chords(pts, gap)))
+            dirs, ang = _chords(pts, gap)
+            self._refs.append((pts, dirs, ang, *_densify(pts, ang, self.p.refine_spacing)))
         if scans:
             self._build_reference()
 
     def _build_reference(self) -> None:
         p = self.p
-        dirs = np.concatenate([d for _, d, _ in self._refs])
-        pts = np.concatenate([r for r, _, _ in self._refs])
-        wts = np.concatenate([w for _, _, w in self._refs])
+        dirs = np.concatenate([r[1] for r in self._refs])
+        pts = np.concatenate([r[0] for r in self._refs])
+        wts = np.concatenate([r[2] for r in self._refs])
         if len(dirs) < 10 or len(pts) < 10:
             self._ref_ready = False
             return
         # for refine(): the reference scans densified along their surfaces, and the tree on demand
-        self._ref_points, self._ref_angles = _densify([(r, w) for r, _, w in self._refs], p.refine_spacing)
+        self._ref_points = np.concatenate([r[3] for r in self._refs])
+        self._ref_angles = np.concatenate([r[4] for r in self._refs])
         self._ref_tree = None
         self._hr = _hist_circular(dirs, self._nb)
         self._hr_shifted = self._hr[self._rot_index]  # (shifts, bins): the rotation correlation is one matvec
@@ -397,32 +399,28 @@ class Localiser:
         return None
 
 
-def _densify(scans: list[tuple[np.ndarray, np.ndarray]], spacing: float) -> tuple[np.ndarray, np.ndarray]:
-    """Points (N, 2) and surface angles (N,) of reference scans (each: points in sweep order and
-    their surface angles, NaN off surfaces), with points added every ``spacing`` metres between
-    consecutive points less than ``_DENSE_GAP`` apart (one surface) at that chord's angle.
+def _densify(r: np.ndarray, w: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points (N, 2) and surface angles (N,) of a reference scan (points ``r`` in sweep order and
+    their surface angles ``w``, NaN off surfaces), with points added every ``spacing`` metres between
+    consecutive points less than ``_DENSE_GAP`` apart (one surface) at that chord's angle: first the
+    scan's own points, then the added ones.
 
     A scan's points sample a wall every few centimetres, at other places than the reference's: the
     nearest reference *point* then pulls a point along the wall towards it, and ICP between the two
     samplings drifts (0.2° a viewpoint on a synthetic turn in place). Densified, the nearest point is
     about the nearest point on the wall."""
-    pts, ang = [], []
-    for r, w in scans:
-        pts.append(r)
-        ang.append(w)
-        if len(r) < 2:
-            continue
-        d = r[1:] - r[:-1]
-        n = np.hypot(d[:, 0], d[:, 1])
-        k = np.where(n < _DENSE_GAP, np.ceil(n / spacing).astype(int) - 1, 0).clip(min=0)  # added per chord
-        total = int(k.sum())
-        if total == 0:
-            continue
-        idx = np.repeat(np.arange(len(d)), k)
-        frac = (np.arange(total) - np.repeat(np.cumsum(k) - k, k) + 1) / np.repeat(k + 1, k)
-        pts.append(r[idx] + frac[:, None] * d[idx])
-        ang.append(np.arctan2(d[idx, 1], d[idx, 0]))
-    return np.concatenate(pts), np.concatenate(ang)
+    if len(r) < 2:
+        return r, w
+    d = r[1:] - r[:-1]
+    n = np.hypot(d[:, 0], d[:, 1])
+    k = np.where(n < _DENSE_GAP, np.ceil(n / spacing).astype(int) - 1, 0).clip(min=0)  # added per chord
+    total = int(k.sum())
+    if total == 0:
+        return r, w
+    idx = np.repeat(np.arange(len(d)), k)
+    frac = (np.arange(total) - np.repeat(np.cumsum(k) - k, k) + 1) / np.repeat(k + 1, k)
+    return (np.concatenate([r, r[idx] + frac[:, None] * d[idx]]),
+            np.concatenate([w, np.arctan2(d[idx, 1], d[idx, 0])]))
 
 
 def _norm_peak(peak: float, norm_a: float, norm_b: float) -> float:

@@ -24,13 +24,14 @@ not count until the robot has been ``CycleParams.entry_hysteresis`` away from it
 a doorway would otherwise flip between the two ASRs).
 
 **Pipelining (better than doing a viewpoint's work in one scan):** a viewpoint's work runs in
-three stages over two or three scans, so that no scan carries all of it: the viewpoint scan computes the
-surfaces, exits and view (a busy scan that re-enters an ASR leaves them to the next one) and takes
-its points as a localisation reference; the next ``add_scan`` starts by unioning the view into the
-ASR's polygon and label store (:meth:`AsrBuilder.add_view` with ``relabel=False``); the last stage,
-relabelling the boundary (exits, centre), then ``AsrUpdated`` and the cycle check, ends the first
-scan from then on that has time to spare (``_SPARE``: usually that same scan, after a large union
-the next). A stage runs earlier whenever something needs its
+stages over two or three scans, so that no scan carries all of it. The viewpoint scan refines its
+pose, takes its points as a localisation reference, and computes as many of the view's stages
+(surfaces, exits, view polygon: ``_ViewWork``) as fit before its own time reaches ``_AHEAD``,
+judged by each stage's recent cost; the next ``add_scan`` starts by computing the rest and unioning
+the view into the ASR's polygon and label store (:meth:`AsrBuilder.add_view` with
+``relabel=False``); the last stage, relabelling the boundary (exits, centre), then ``AsrUpdated``
+and the cycle check, ends the first scan from then on that has time to spare (``_SPARE``: usually
+the one after). A stage runs earlier whenever something needs its
 result: the exits when the robot is outside the polygon or near the exit it came in by, everything
 before leaving the ASR or taking the next view, and everything when ``asrs``, ``globalmap``,
 ``global_pose``, ``document()`` or ``viewpoints()`` is read. Each stage sees the state it would
@@ -76,6 +77,43 @@ _ODOM_KEEP = 4096  # odometry readings kept for interpolation (minutes at 20 Hz)
 #: s. Pipelined, a scan that has spent less than this relabels the ASR its union grew (a view's
 #: last stage) before returning; a busier scan leaves it to the next one with time to spare.
 _SPARE = 1.5e-3
+#: s. Pipelined, a viewpoint scan computes as many of its view's stages (surfaces, exits, polygon;
+#: first the relabelling of the view before, if still waiting) as fit before its own time reaches
+#: this, judged by each stage's recent cost; the next scan computes the rest before the union.
+_AHEAD = 2.6e-3
+_STAGES = ("extract", "exits", "view")
+
+
+class _ViewWork:
+    """A waiting view's stages as far as they are computed (robot frame): surfaces, covers, view.
+
+    Each is a pure function of the scan and the parameters, so which scan computes it changes
+    nothing but the time it is spent in."""
+
+    __slots__ = ("covers", "pts", "surf", "view")
+
+    def __init__(self, pts: ScanPoints):
+        self.pts, self.surf, self.covers, self.view = pts, None, None, None
+
+    def step(self, p: MapperParams) -> tuple[str, float] | None:
+        """Compute the next stage; its name and time (s), or None when the view is done."""
+        tic = time.perf_counter()
+        if self.surf is None:
+            self.surf, stage = extract_surfaces(self.pts, p), "extract"
+        elif self.covers is None:
+            self.covers, stage = find_covers(self.surf, p), "exits"
+        elif self.view is None:
+            self.view, stage = build_view(self.surf, p, self.covers), "view"
+        else:
+            return None
+        return stage, time.perf_counter() - tic
+
+    def next_stage(self) -> str | None:
+        """The stage :meth:`step` would compute next (None: done)."""
+        for stage, done in zip(_STAGES, (self.surf, self.covers, self.view), strict=True):
+            if done is None:
+                return stage
+        return None
 
 
 def _segments(exits: list[Exit]) -> np.ndarray:
@@ -129,9 +167,11 @@ class Mapper:
         self._next_id = 1
         self._gm = GlobalMap(self.params.cycles)
         # A viewpoint's view waiting to be unioned into its ASR (see "Pipelining" in the module
-        # docstring): (time, ASR id, scan points, pose, view or None when not computed yet); and the
-        # events of settled views not yet returned.
-        self._pending: tuple[float, int, ScanPoints, Pose, View | None, bool] | None = None
+        # docstring): (time, ASR id, pose, the view or its stages so far, walked); and the events of
+        # settled views not yet returned.
+        self._pending: tuple[float, int, Pose, View | _ViewWork, bool] | None = None
+        # s: each stage's recent cost (for _work_ahead)
+        self._cost = {"extract": 6e-4, "exits": 6e-4, "view": 3e-4, "labels": 1e-3}
         self._stale: tuple[float, int] | None = None  # (time, ASR) unioned but not yet relabelled
         self._creating: tuple | None = None  # the ASR the last scan created: (t, old, exit, at, pose)
         self._outbox: list[Event] = []
@@ -290,9 +330,8 @@ class Mapper:
             tic = time.perf_counter()
             self.localiser.refine(pts.xy)  # a viewpoint's pose is inherited by the reference
             timing["refine"] = time.perf_counter() - tic
-            # pipelined, a scan that has already spent its share leaves even the view to the next
-            busy = time.perf_counter() - self._scan_start > _SPARE
-            return self._add_view(scan.t, pts, self.pose, late=busy, walked=True)
+            # pipelined, the view's stages are computed as this scan has time, the rest next scan
+            return self._add_view(scan.t, pts, self.pose, late=True, walked=True)
         return []
 
     # --- growing the current ASR -----------------------------------------------------------------
@@ -318,17 +357,18 @@ class Mapper:
         pipelined = defer and self.defer_views
         now = not (late and pipelined)  # else the view, and whether it may be unioned, wait
         at_exit = now and walked and self._at_exit(self.current, pose)  # not unioned: no view needed
-        view = self._view(pts) if now and not at_exit else None
+        view = self._view(pts) if now and not at_exit else _ViewWork(pts)
         self.localiser.add_reference(pts.xy, pose)
         refs = self._refs.setdefault(self.current, [])
         refs.append((pts.xy, pose))
         if len(refs) > p.reference_scans + 1:
             del refs[1]  # the first view anchors the frame, as in the localiser
         self._last_view = pose
-        if at_exit or (walked and view is not None and view.in_doorway):
+        if at_exit or (walked and isinstance(view, View) and view.in_doorway):
             return []
-        self._pending = (t, self.current, pts, pose, view, walked)
+        self._pending = (t, self.current, pose, view, walked)
         if pipelined:
+            self._work_ahead()
             return []
         before = len(self._outbox)  # events of earlier views stay in the outbox
         self._settle()
@@ -354,17 +394,37 @@ class Mapper:
             np.min(segment_distance(pose[0], pose[1], _segments(exits))) < self.params.rear_closure
         )
 
-    def _view(self, pts: ScanPoints) -> View:
-        """Surfaces, exits and the truncated view of one scan (robot frame)."""
-        p = self.params
-        tic = time.perf_counter()
-        surf = extract_surfaces(pts, p)
-        tac = time.perf_counter()
-        covers = find_covers(surf, p)
-        toc = time.perf_counter()
-        view = build_view(surf, p, covers)
-        self.timing.update(extract=tac - tic, exits=toc - tac, view=time.perf_counter() - toc)
-        return view
+    def _view(self, pts: ScanPoints | _ViewWork) -> View:
+        """Surfaces, exits and the truncated view of one scan (robot frame), or the rest of them."""
+        work = pts if isinstance(pts, _ViewWork) else _ViewWork(pts)
+        while self._step(work):
+            pass
+        return work.view
+
+    def _step(self, work: _ViewWork) -> bool:
+        """One stage of ``work`` (False: none left), timed into ``timing`` and the stage's cost."""
+        done = work.step(self.params)
+        if done is None:
+            return False
+        stage, dt = done
+        self.timing[stage] = dt
+        self._cost[stage] += 0.2 * (dt - self._cost[stage])
+        return True
+
+    def _work_ahead(self) -> None:
+        """Compute the waiting view's stages while each fits before ``_AHEAD`` (see ``_ViewWork``),
+        after the relabelling its union will need (the view before's, if still waiting)."""
+        if self._pending is None or not isinstance(self._pending[3], _ViewWork):
+            return
+        work = self._pending[3]
+        if self._stale is not None:  # the union of this view needs the labels of the one before
+            if time.perf_counter() - self._scan_start + self._cost["labels"] > _AHEAD:
+                return
+            self._settle_labels()
+        while (stage := work.next_stage()) is not None:
+            if time.perf_counter() - self._scan_start + self._cost[stage] > _AHEAD:
+                return
+            self._step(work)
 
     def _settle(self) -> None:
         """Finish every stage of the views still waiting; their events go to the outbox."""
@@ -390,12 +450,12 @@ class Mapper:
         """Union the waiting view into its ASR (its relabelling then waits, when deferring)."""
         if self._pending is None:
             return
-        t, aid, pts, pose, view, walked = self._pending
+        t, aid, pose, view, walked = self._pending
         self._pending = None
-        if view is None:
+        if isinstance(view, _ViewWork):
             if walked and self._at_exit(aid, pose):
                 return
-            view = self._view(pts)
+            view = self._view(view)
             if walked and view.in_doorway:
                 return
         tic = time.perf_counter()
@@ -419,7 +479,8 @@ class Mapper:
         tic = time.perf_counter()
         builder = self._builders[aid]
         builder.ensure_labels()
-        timing["labels"] = time.perf_counter() - tic
+        dt = timing["labels"] = time.perf_counter() - tic
+        self._cost["labels"] += 0.2 * (dt - self._cost["labels"])
         a = builder.asr
         self._outbox.append(AsrUpdated(t, a.id, a.area, a.scans))
         if self._gm.current == a.id:  # not while the ASR is being created

@@ -21,10 +21,12 @@ def _run(walls, truth, defer: bool):
     return [e.to_dict() for e in events], json.dumps(m.document(), sort_keys=True)
 
 
-@pytest.fixture(params=[0.0, 1e9], ids=["last-stage-always-waits", "last-stage-never-waits"])
+@pytest.fixture(params=[0.0, 1e9], ids=["stages-always-wait", "stages-never-wait"])
 def spare(request, monkeypatch):
-    """When the last stage runs depends on the clock; what the mapper computes must not."""
+    """When a view's stages run depends on the clock (the last stage, ``_SPARE``; the view's
+    surfaces, exits and polygon worked ahead, ``_AHEAD``); what the mapper computes must not."""
     monkeypatch.setattr(mapper_module, "_SPARE", request.param)
+    monkeypatch.setattr(mapper_module, "_AHEAD", request.param)
     return request.param
 
 
