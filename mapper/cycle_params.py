@@ -41,6 +41,16 @@ class CycleParams:
     A centre near the other's boundary is where drift and the ragged outline of real ASRs (spikes
     seen through gaps) decide, not the place; 0 is the paper's test."""
 
+    verify_crosscheck_margin: float = 0.1
+    """m. Beyond the paper (needs ``verify``): the crosscheck repeated with the verified surface
+    alignment applied asks each centre to lie only this far inside the other polygon (at most
+    ``crosscheck_margin``). The unaligned crosscheck has already passed with the full margin; the
+    margin guards against drift, and the alignment has placed the two ASRs by their walls, so what
+    is left to test is that they are the same place. On the five shared logs, of the pairs that
+    failed only this aligned crosscheck at 0.3 m, 5 true and 5 false: the false ones all left a
+    centre outside the other ASR once aligned, two true ones (Intel corrected, MIT CSAIL) kept
+    both 0.15-0.26 m inside."""
+
     hold_crosscheck: bool = True
     """Beyond the paper: an accepted cycle keeps holding as its two ASRs grow. A view that would
     leave either centre less than ``crosscheck_margin`` inside the other ASR's polygon (global

@@ -314,7 +314,8 @@ class GlobalMap:
         return dataclasses.replace(a, violation=violation)
 
     def _verified(self, a: Alignment | None, n: int, m: int) -> bool:
-        """The alignment is good, and with it applied to n the centre crosscheck still passes."""
+        """The alignment is good, and with it applied to n the centre crosscheck still passes (by
+        ``verify_crosscheck_margin``)."""
         p = self.params
         if a is None:
             return False
@@ -322,7 +323,7 @@ class GlobalMap:
         poly_n, c_n = global_polygon(self.asrs[n], moved), global_centre(self.asrs[n], moved)
         poly_m, c_m = global_polygon(self.asrs[m]), global_centre(self.asrs[m])
         return (
-            _mutual(poly_n, c_n, poly_m, c_m, p.crosscheck_margin)
+            _mutual(poly_n, c_n, poly_m, c_m, min(p.crosscheck_margin, p.verify_crosscheck_margin))
             and a.rms <= p.verify_max_residual
             and a.inliers >= p.verify_min_inliers
             and a.shift <= p.verify_max_correction

@@ -1,12 +1,13 @@
 """Cycle detection and closing on constructed ASRs (method.md §5 and §7)."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from mapper.cycle_params import CycleParams
-from mapper.cycles import SpatialIndex, align_points
+from mapper.cycles import Alignment, SpatialIndex, align_points
 from mapper.events import CycleDetected, CycleRejected, MapRealigned
 from mapper.globalmap import GlobalMap
 from mapper.se2 import between, transform_points
@@ -299,3 +300,17 @@ def test_a_view_that_would_move_a_duplicates_centre_out_of_its_match_is_not_unio
     b.polygon = shapely.box(0.5, 0.0, 9.0, 4.0)
     m._hold_closures(b, before, (2.0, 2.0, 0.0))
     assert b.polygon.area == pytest.approx(34.0)
+
+
+@pytest.mark.parametrize(("margin", "verified"), [(0.1, True), (0.3, False)])
+def test_a_verified_alignment_needs_the_centres_only_verify_crosscheck_margin_deep(margin, verified):
+    # Two 4 m rooms' worth of one space, overlapping 2.2 m: once aligned, each centre lies 0.2 m
+    # inside the other polygon. The unaligned crosscheck (with drift) asked for crosscheck_margin;
+    # with the walls aligned, verify_crosscheck_margin is asked (default 0.1 m).
+    params = FULL.replace(verify_crosscheck_margin=margin)
+    gm = GlobalMap(params)
+    a, b = box_asr(1, (0, 0, 4, 4), (0.0, 0.0, 0.0), "E"), box_asr(2, (1.8, 0, 5.8, 4), (0.0, 0.0, 0.0), "W")
+    gm.asrs[1], gm.asrs[2] = a, b
+    good = Alignment(correction=(0.0, 0.0, 0.0), rms=0.02, inliers=0.9, shift=0.0, constraint=0.3)
+    assert gm._verified(good, 2, 1) is verified
+    assert gm._verified(dataclasses.replace(good, correction=(0.15, 0.0, 0.0)), 2, 1) is False  # 0.05 m deep
