@@ -77,9 +77,9 @@ _ODOM_KEEP = 4096  # odometry readings kept for interpolation (minutes at 20 Hz)
 #: s. Pipelined, a scan that has spent less than this relabels the ASR its union grew (a view's
 #: last stage) before returning; a busier scan leaves it to the next one with time to spare.
 _SPARE = 1.5e-3
-#: s. Pipelined, a viewpoint scan computes as many of its view's stages (surfaces, exits, polygon;
-#: first the relabelling of the view before, if still waiting) as fit before its own time reaches
-#: this, judged by each stage's recent cost; the next scan computes the rest before the union.
+#: s. Pipelined, a viewpoint scan computes as many of its view's stages (surfaces, exits, polygon)
+#: as fit before its own time reaches this, judged by each stage's recent cost (after relabelling
+#: the view before, if still waiting); the next scan computes the rest before the union.
 _AHEAD = 2.6e-3
 _STAGES = ("extract", "exits", "view")
 
@@ -171,7 +171,7 @@ class Mapper:
         # settled views not yet returned.
         self._pending: tuple[float, int, Pose, View | _ViewWork, bool] | None = None
         # s: each stage's recent cost (for _work_ahead)
-        self._cost = {"extract": 6e-4, "exits": 6e-4, "view": 3e-4, "labels": 1e-3}
+        self._cost = {"extract": 6e-4, "exits": 6e-4, "view": 3e-4}
         self._stale: tuple[float, int] | None = None  # (time, ASR) unioned but not yet relabelled
         self._creating: tuple | None = None  # the ASR the last scan created: (t, old, exit, at, pose)
         self._outbox: list[Event] = []
@@ -417,10 +417,10 @@ class Mapper:
         if self._pending is None or not isinstance(self._pending[3], _ViewWork):
             return
         work = self._pending[3]
-        if self._stale is not None:  # the union of this view needs the labels of the one before
-            if time.perf_counter() - self._scan_start + self._cost["labels"] > _AHEAD:
-                return
-            self._settle_labels()
+        # The union of this view needs the labels of the view before: still waiting, they are done
+        # here whatever the time, since the next scan would do them first, before this view's rest
+        # and union (one scan carrying relabelling, view and union: 4 ms).
+        self._settle_labels()
         while (stage := work.next_stage()) is not None:
             if time.perf_counter() - self._scan_start + self._cost[stage] > _AHEAD:
                 return
@@ -479,8 +479,7 @@ class Mapper:
         tic = time.perf_counter()
         builder = self._builders[aid]
         builder.ensure_labels()
-        dt = timing["labels"] = time.perf_counter() - tic
-        self._cost["labels"] += 0.2 * (dt - self._cost["labels"])
+        timing["labels"] = time.perf_counter() - tic
         a = builder.asr
         self._outbox.append(AsrUpdated(t, a.id, a.area, a.scans))
         if self._gm.current == a.id:  # not while the ASR is being created
