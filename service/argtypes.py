@@ -21,6 +21,11 @@ def positive(text: str) -> float:
     return _number(text, lambda x: x > 0, "a number > 0")
 
 
+def count(text: str) -> int:
+    """A whole number >= 1 (how many runs)."""
+    return int(_number(text, lambda x: x >= 1 and x == int(x), "a whole number >= 1"))
+
+
 def non_negative(text: str) -> float:
     """A finite number >= 0 (a wait in seconds)."""
     return _number(text, lambda x: x >= 0, "a number >= 0")

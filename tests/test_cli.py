@@ -31,8 +31,11 @@ def test_bad_numbers_are_refused_naming_the_option(capsys):
     for argv, option in ((["simulate", "--duration", "-5"], "--duration"),
                          (["simulate", "--fast", "0"], "--fast"),
                          (["replay", "x.log", "--speed", "abc"], "--speed"),
-                         (["emulate", "pioneer", "--seconds", "nan"], "--seconds")):
+                         (["emulate", "pioneer", "--seconds", "nan"], "--seconds"),
+                         (["bench", "mapper", "--runs", "0"], "--runs"),
+                         (["bench", "mapper", "--runs", "2.5"], "--runs")):
         with pytest.raises(SystemExit) as exc:
             main(argv)
         assert exc.value.code == 2
-        assert f"argument {option}: expected a number" in capsys.readouterr().err
+        err = capsys.readouterr().err
+        assert f"argument {option}: expected a " in err and ("number" in err), err

@@ -3,14 +3,16 @@
 The whole core per scan (points, localisation, and on viewpoint scans line extraction, exits, the
 view polygon and the ASR union; and whatever else ``Mapper.add_scan`` runs, e.g. the cycle check),
 timed around ``Mapper.add_scan`` on one core; the log is parsed before timing. The mapper runs
-pipelined as in ``asrmap replay`` (``defer_views=True``: a viewpoint's union and relabelling run at
-the start of the next two scans, the same map); the figures with each view's work in its own scan
+pipelined as in ``asrmap replay`` (``defer_views=True``: a viewpoint's work spread over it and the
+next one or two scans, the same map); the figures with each view's work in its own scan
 (as the live service runs) follow, and those of the core alone (cycle closing off, so no
 surface alignment: the scope of the mapper-core issue). Prints median, p99
 and max of the wall clock and of this thread's CPU time (which other processes on a busy machine
 do not inflate), scans/s and the real-time factor (log duration / compute time), then each stage's
 median and p99 over the scans that ran it (``Mapper.timing``, wall clock), and the cost of
-extraction + exits + view on *every* scan (as if each scan were a viewpoint).
+extraction + exits + view on *every* scan (as if each scan were a viewpoint). ``--runs N`` replays
+the pipelined and core-alone cases N times and prints each run's median and p99 and the median of
+the runs' p99: this machine's timings vary by tens of per cent between identical runs.
 """
 
 from __future__ import annotations
@@ -74,6 +76,16 @@ def run(args=None) -> dict:
     alone_ms = np.asarray(alone) * 1e3
     out["core_median_ms"], out["core_p99_ms"] = float(np.median(alone_ms)), float(np.percentile(alone_ms, 99))
     print(f"  the core alone, cycle closing off ({len(mc.asrs)} ASRs): {_stats(alone_ms)}")
+    runs = int(getattr(args, "runs", 1) or 1)
+    if runs > 1:  # the same replays again: this machine's timings vary between runs
+        cases = (("pipelined", "pipelined", params, ms), ("core alone", "core", core, alone_ms))
+        for label, key, pp, first in cases:
+            more = [np.asarray(_replay(items, pp, defer_views=True)[1]) * 1e3 for _ in range(runs - 1)]
+            per = [first, *more]
+            med, p99 = [float(np.median(r)) for r in per], [float(np.percentile(r, 99)) for r in per]
+            out[f"{key}_runs_p99_ms"] = p99
+            print(f"  {label}, {runs} runs: median {' '.join(f'{x:.3f}' for x in med)} ms; "
+                  f"p99 {' '.join(f'{x:.2f}' for x in p99)} ms (median of runs {np.median(p99):.2f})")
     _, now, now_cpu, _ = _replay(items, params, defer_views=False)
     now_ms, now_cpu = np.asarray(now) * 1e3, np.asarray(now_cpu) * 1e3
     out["immediate_median_ms"] = float(np.median(now_ms))

@@ -6,6 +6,7 @@ import importlib
 import pkgutil
 
 from service import bench
+from service.argtypes import count
 
 NAME = "bench"
 HELP = "print throughput/latency figures (median, p99, rate) of each hot path on this computer"
@@ -21,6 +22,9 @@ def add_arguments(p) -> None:
     p.add_argument("names", nargs="*", help="benchmarks to run (default: all); --list shows them")
     p.add_argument("--list", action="store_true", help="list the benchmarks and exit")
     p.add_argument("--quick", action="store_true", help="fewer repetitions (a smoke run)")
+    p.add_argument("--runs", type=count, default=1, metavar="N",
+                   help="mapper: replay N times and print each run's median and p99 and their median "
+                        "(this machine's timings vary by tens of per cent between runs)")
 
 
 def run(args) -> int:
