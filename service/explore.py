@@ -9,6 +9,9 @@ topological map offers no way there (the way out failed), it heads across the cu
 nearest unexplored exit of any ASR in the global frame (``goto``); when none is left, the exits that
 failed are retried (``retries`` rounds, each ending after ``retry_budget`` seconds without new
 space), then it is *done*.
+An exit is crossed on its chord's normal, or, when its run of exit edges begins or ends with a wall
+seen at a grazing angle (a corridor's end seen from inside: a U of exit edges), through what is
+left between those arms (:func:`crossing`).
 An exit is explored when it leads somewhere (``to`` is set, or a link starts from it; a link naming
 an exit the ASR no longer has is travelled through the other side's), when crossing it failed, when
 it was seen shut (a surface right behind it in a scan: :meth:`Planner.shut_exits`), when the space
@@ -93,6 +96,11 @@ class ExploreParams:
     shut_depth: float = 0.3
     shut_width: float = 0.3
     shut_points: int = 3
+    #: m. A run of exit edges whose ends run on within ``grazing_offset`` of the line of the surface
+    #: beside them is crossed through what is left between those arms, when that is at least
+    #: ``min_opening`` wide (:func:`crossing`).
+    grazing_offset: float = 0.1
+    min_opening: float = 0.5
     #: s. After reaching the far side, the mapper has this long to report the crossing.
     crossing_grace: float = 3.0
     #: m. After a crossing the robot carries on to the point beyond the exit (when it is at least
@@ -342,7 +350,11 @@ def _inside_point(free: shapely.Geometry, near: tuple[float, float], fallback: t
 
 def exit_normal(asr: ASR, ex: Exit) -> np.ndarray:
     """Unit normal of the exit pointing out of the ASR (ASR frame)."""
-    a, b = np.asarray(ex.a, float), np.asarray(ex.b, float)
+    return _outward(asr, np.asarray(ex.a, float), np.asarray(ex.b, float))
+
+
+def _outward(asr: ASR, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Unit normal of the chord ``a`` -> ``b`` pointing out of the ASR (ASR frame)."""
     d = b - a
     n = np.array([d[1], -d[0]]) / max(float(np.hypot(*d)), 1e-9)
     mid = (a + b) / 2.0
@@ -627,21 +639,16 @@ class Planner:
         if best is None:
             return None
         other, ex = best
-        n = exit_normal(other, ex)
-        mid = np.asarray(ex.midpoint, dtype=float)
-        depth = _depth_beyond(other, mid, n)
-        ends = np.array([mid - self.p.stage_distance * n, mid + (depth + self.p.through_distance) * n])
+        ends = np.array(crossing(other, ex, self.p))
         stage, through = transform_points(compose(inverse(asr.origin), other.origin), ends).tolist()
         # The staging point as it is, in the other ASR: the way there is planned through the map.
         return Goal("goto", asr.id, target=(stage[0], stage[1]), exit=ex.id,
                     through=(through[0], through[1]), path=(asr.id, other.id), exit_mid=ex.midpoint)
 
     def _through(self, view, asr: ASR, ex: Exit, kind: str, free, path) -> Goal:
-        n = exit_normal(asr, ex)
-        mid = np.asarray(ex.midpoint)
-        stage = tuple(float(v) for v in mid - self.p.stage_distance * n)
-        depth = _depth_beyond(asr, mid, n)
-        through = tuple(float(v) for v in mid + (depth + self.p.through_distance) * n)
+        s, t = crossing(asr, ex, self.p)
+        stage = (float(s[0]), float(s[1]))
+        through = (float(t[0]), float(t[1]))
         here = (view.pose[0], view.pose[1])
         return Goal(kind, asr.id, target=_inside_point(free, stage, here), exit=ex.id,  # type: ignore[arg-type]
                     through=through, path=tuple(path), exit_mid=ex.midpoint)  # type: ignore[arg-type]
@@ -680,6 +687,100 @@ class Planner:
                     prev[b] = (a, e)
                     heapq.heappush(todo, (nd, b))
         return None
+
+
+def exit_run(asr: ASR, ex: Exit) -> np.ndarray | None:
+    """The boundary vertices (K, 2) of the run of exit edges whose chord ``ex`` is (from ``a`` to
+    ``b`` along the boundary), or None (not the ASR's own exit, or the run is not all exit edges)."""
+    b = np.asarray(asr.boundary, dtype=float)
+    n = len(b)
+    if n < 3 or len(asr.edges) != n:
+        return None
+    da = np.hypot(*(b - np.asarray(ex.a, dtype=float)).T)
+    db = np.hypot(*(b - np.asarray(ex.b, dtype=float)).T)
+    ia, ib = int(np.argmin(da)), int(np.argmin(db))
+    if da[ia] > 1e-6 or db[ib] > 1e-6 or ia == ib:
+        return None
+    idx = [ia]
+    while idx[-1] != ib:
+        if asr.edges[idx[-1]] != "exit" or len(idx) > n:
+            return None
+        idx.append((idx[-1] + 1) % n)
+    return b[idx]
+
+
+def _surface_line(asr: ASR, vertex: int, step: int, length: float = 0.5,
+                  skip: float = 0.15) -> tuple[np.ndarray, np.ndarray] | None:
+    """The line (point, unit direction pointing towards ``vertex``) of the surface edges next to
+    boundary vertex ``vertex``, walking ``step`` (-1: back, +1: on) over up to ``length`` m of them
+    (after at most ``skip`` m of other edges: a sliver of ``unknown`` between a wall and its grazing
+    continuation); None when they are shorter than 0.3 m together (too short to give a direction)."""
+    b = np.asarray(asr.boundary, dtype=float)
+    n = len(b)
+    k, start, far = vertex, None, 0.0
+    for _ in range(n):
+        edge = (k - 1) % n if step < 0 else k  # the edge between k and its neighbour that way
+        k2 = (k + step) % n
+        if asr.edges[edge] != "surface":
+            if start is not None or float(np.hypot(*(b[k2] - b[vertex]))) > skip:
+                break
+            k = k2
+            continue
+        if start is None:
+            start = k
+        far = float(np.hypot(*(b[k2] - b[start])))
+        k = k2
+        if far >= length:
+            break
+    if start is None or far < 0.3:
+        return None
+    d = b[start] - b[k]
+    return b[start], d / float(np.hypot(*d))
+
+
+def _grazing(pts: np.ndarray, line: tuple[np.ndarray, np.ndarray] | None, tol: float) -> int:
+    """How many leading edges of the polyline ``pts`` run on along ``line`` (every vertex within
+    ``tol`` m of it, each one no farther back along it than the one before)."""
+    if line is None:
+        return 0
+    q, u = line
+    rel = pts - q
+    off = np.abs(rel[:, 0] * u[1] - rel[:, 1] * u[0])
+    along = rel @ u
+    k = 0
+    while k + 1 < len(pts) and off[k + 1] < tol and along[k + 1] > along[k] - 0.05:
+        k += 1
+    return k
+
+
+def crossing(asr: ASR, ex: Exit, p: ExploreParams) -> tuple[np.ndarray, np.ndarray]:
+    """Where to cross exit ``ex`` of ``asr``: (staging point inside, point beyond), ASR frame.
+
+    Normally on the exit chord's normal, ``stage_distance`` inside and ``through_distance`` beyond
+    the polygon. But a run of exit edges often begins or ends with a wall seen at a grazing angle
+    (its scan returns too sparse for a surface fit), which runs on along the line of the surface
+    next to it: a corridor seen from inside ends in a U of exit edges, two walls and the open end
+    across. Its chord runs diagonally across the corridor, and the chord's normal leads into a wall
+    or out of the world, or to the far corner of the U, still inside the polygon. The arms that
+    continue the line of the surface beside them are cut off, and the crossing is made through
+    what is left (the open end), on its own normal.
+    """
+    a, b = np.asarray(ex.a, dtype=float), np.asarray(ex.b, dtype=float)
+    run = exit_run(asr, ex)
+    if run is not None and len(run) > 2:
+        n_b = len(asr.boundary)
+        ia = int(np.argmin(np.hypot(*(np.asarray(asr.boundary, float) - a).T)))
+        ib = (ia + len(run) - 1) % n_b
+        tol = p.grazing_offset
+        lead = _grazing(run, _surface_line(asr, ia, -1), tol)
+        back = _grazing(run[::-1], _surface_line(asr, ib, +1), tol)
+        rest = run[lead: len(run) - back]
+        if 0 < lead + back and len(rest) >= 2 and float(np.hypot(*(rest[-1] - rest[0]))) >= p.min_opening:
+            a, b = rest[0], rest[-1]
+    n = _outward(asr, a, b)
+    mid = (a + b) / 2.0
+    depth = _depth_beyond(asr, mid, n)
+    return mid - p.stage_distance * n, mid + (depth + p.through_distance) * n
 
 
 def _depth_beyond(asr: ASR, mid: np.ndarray, n: np.ndarray, reach: float = 2.0) -> float:

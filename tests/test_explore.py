@@ -444,3 +444,28 @@ def test_a_recovery_move_may_pull_away_along_a_wall_beside_the_robot():
     ex._queue([(2.0, 0.15, 0.0)], 0.0)  # a recovery move straight ahead
     cmd = ex.step(view([room(1, -5, -5, 5, 5)], 1, pose=(0.0, 0.0, 0.0)), wall, 0.0)
     assert cmd.status == "recovering" and cmd.v == 0.15
+
+
+def test_a_corridor_end_seen_as_a_u_of_exit_edges_is_crossed_through_its_open_end():
+    """A corridor seen from inside ends in a U of exit edges: the two walls, seen at a grazing angle,
+    run on along the lines of the wall surfaces, and the open end runs across. Its chord (one arm
+    longer than the other) runs diagonally across the corridor, and its normal led through the north
+    wall (`lab` seed 5: the corridor's west end given up, "a surface across the way through").
+    The crossing is made through the open end."""
+    # Corridor x 1..8, y 0..1.6, closed at x = 8; the north wall's last 2.8 m and the south wall's
+    # first 1.5 m are exit edges, the open end runs from (1.2, 1.6) to (1.0, 0).
+    b = np.array([[8, 0], [8, 1.6], [4, 1.6], [3, 1.6], [2, 1.6], [1.2, 1.6], [1.0, 0.0], [1.8, 0.0],
+                  [2.5, 0.0]], dtype=float)
+    edges = ["surface", "surface", "exit", "exit", "exit", "exit", "exit", "exit", "surface"]
+    a = ASR(1, 0.0, (0.0, 0.0, 0.0), b, edges, (5.0, 0.8), exits=[door(1, 0, (4.0, 1.6), (2.5, 0.0))])
+    g = Planner().plan(view([a], 1, pose=(6.0, 0.8, math.pi)))
+    assert g.kind == "exit" and g.exit == "1/0"
+    x, y = g.through
+    assert x < 1.0 - 0.5 and 0.3 < y < 1.3  # beyond the open end, inside the corridor's width
+    assert a.polygon.buffer(-0.2).contains(__import__("shapely").Point(g.target))  # staged inside
+    # A doorway in a wall (its run on the wall's line throughout) is crossed on its chord's normal.
+    b2 = np.array([[0, 0], [4, 0], [4, 3], [2.5, 3], [2, 3], [1.5, 3], [0, 3]], dtype=float)
+    e2 = ["surface", "surface", "surface", "exit", "exit", "surface", "surface"]
+    a2 = ASR(2, 0.0, (0.0, 0.0, 0.0), b2, e2, (2.0, 1.5), exits=[door(2, 0, (2.5, 3.0), (1.5, 3.0))])
+    g2 = Planner().plan(view([a2], 2, pose=(2.0, 1.0, 0.0)))
+    assert g2.through == pytest.approx((2.0, 3.0 + P.through_distance))
