@@ -232,7 +232,7 @@ class GlobalMap:
                 events += self._decide(t, n, m, c, cm, overlap, "lower-overlap", False)
                 continue
             align = found or (self._align(n, m) if (p.verify or p.realign) else None)
-            if p.verify and not self._verified(align, n, m):
+            if p.verify and not self._verified(align, n, m, near=rule == "aligned-crosscheck"):
                 events += self._decide(t, n, m, c, cm, overlap, "verification", False)
                 continue
             done = True
@@ -276,7 +276,7 @@ class GlobalMap:
             return None
         align = self._align(n, m, gate=max(1.0, p.search_radius))
         if (
-            self._verified(align, n, m)
+            self._verified(align, n, m, near=True)
             and align.constraint >= p.verify_min_constraint
             and align.inliers >= p.verify_near_min_inliers
         ):
@@ -313,17 +313,19 @@ class GlobalMap:
         )
         return dataclasses.replace(a, violation=violation)
 
-    def _verified(self, a: Alignment | None, n: int, m: int) -> bool:
-        """The alignment is good, and with it applied to n the centre crosscheck still passes (by
-        ``verify_crosscheck_margin``)."""
+    def _verified(self, a: Alignment | None, n: int, m: int, near: bool = False) -> bool:
+        """The alignment is good, and with it applied to n the centre crosscheck still passes: by
+        ``verify_crosscheck_margin`` after an unaligned crosscheck passed, by ``crosscheck_margin``
+        for a ``near`` candidate (its aligned crosscheck is the only one)."""
         p = self.params
         if a is None:
             return False
+        margin = p.crosscheck_margin if near else min(p.crosscheck_margin, p.verify_crosscheck_margin)
         moved = compose(a.correction, self.asrs[n].origin)
         poly_n, c_n = global_polygon(self.asrs[n], moved), global_centre(self.asrs[n], moved)
         poly_m, c_m = global_polygon(self.asrs[m]), global_centre(self.asrs[m])
         return (
-            _mutual(poly_n, c_n, poly_m, c_m, min(p.crosscheck_margin, p.verify_crosscheck_margin))
+            _mutual(poly_n, c_n, poly_m, c_m, margin)
             and a.rms <= p.verify_max_residual
             and a.inliers >= p.verify_min_inliers
             and a.shift <= p.verify_max_correction
@@ -337,7 +339,7 @@ class GlobalMap:
         dup, match = self.asrs[n], self.asrs[m]
         dup.duplicate_of = m
         self._closed.add(n)
-        good = align is not None and self._verified(align, n, m)
+        good = align is not None and self._verified(align, n, m, near=reason == "aligned-crosscheck")
         # dup's frame corrected onto match (global frame), then match's frame seen from dup's.
         dup_origin = compose(align.correction, dup.origin) if good else dup.origin
         rel_nm = between(dup_origin, match.origin)

@@ -775,7 +775,7 @@ def crossing(asr: ASR, ex: Exit, p: ExploreParams) -> tuple[np.ndarray, np.ndarr
         lead = _grazing(run, _surface_line(asr, ia, -1), tol)
         back = _grazing(run[::-1], _surface_line(asr, ib, +1), tol)
         rest = run[lead: len(run) - back]
-        if 0 < lead + back and len(rest) >= 2 and float(np.hypot(*(rest[-1] - rest[0]))) >= p.min_opening:
+        if lead + back > 0 and len(rest) >= 2 and float(np.hypot(*(rest[-1] - rest[0]))) >= p.min_opening:
             a, b = rest[0], rest[-1]
     n = _outward(asr, a, b)
     mid = (a + b) / 2.0

@@ -306,7 +306,7 @@ def test_a_view_that_would_move_a_duplicates_centre_out_of_its_match_is_not_unio
 def test_a_verified_alignment_needs_the_centres_only_verify_crosscheck_margin_deep(margin, verified):
     # Two 4 m rooms' worth of one space, overlapping 2.2 m: once aligned, each centre lies 0.2 m
     # inside the other polygon. The unaligned crosscheck (with drift) asked for crosscheck_margin;
-    # with the walls aligned, verify_crosscheck_margin is asked (default 0.1 m).
+    # with the walls aligned, verify_crosscheck_margin is asked (default 0.3 m, as crosscheck_margin).
     params = FULL.replace(verify_crosscheck_margin=margin)
     gm = GlobalMap(params)
     a, b = box_asr(1, (0, 0, 4, 4), (0.0, 0.0, 0.0), "E"), box_asr(2, (1.8, 0, 5.8, 4), (0.0, 0.0, 0.0), "W")
@@ -314,3 +314,5 @@ def test_a_verified_alignment_needs_the_centres_only_verify_crosscheck_margin_de
     good = Alignment(correction=(0.0, 0.0, 0.0), rms=0.02, inliers=0.9, shift=0.0, constraint=0.3)
     assert gm._verified(good, 2, 1) is verified
     assert gm._verified(dataclasses.replace(good, correction=(0.15, 0.0, 0.0)), 2, 1) is False  # 0.05 m deep
+    # A candidate found only by the search radius had no unaligned crosscheck: crosscheck_margin.
+    assert gm._verified(good, 2, 1, near=True) is False

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+import shapely
 
 from mapper.types import ASR, Exit
 from service.explore import (
@@ -462,7 +463,7 @@ def test_a_corridor_end_seen_as_a_u_of_exit_edges_is_crossed_through_its_open_en
     assert g.kind == "exit" and g.exit == "1/0"
     x, y = g.through
     assert x < 1.0 - 0.5 and 0.3 < y < 1.3  # beyond the open end, inside the corridor's width
-    assert a.polygon.buffer(-0.2).contains(__import__("shapely").Point(g.target))  # staged inside
+    assert a.polygon.buffer(-0.2).contains(shapely.Point(g.target))  # staged inside
     # A doorway in a wall (its run on the wall's line throughout) is crossed on its chord's normal.
     b2 = np.array([[0, 0], [4, 0], [4, 3], [2.5, 3], [2, 3], [1.5, 3], [0, 3]], dtype=float)
     e2 = ["surface", "surface", "surface", "exit", "exit", "surface", "surface"]
