@@ -348,6 +348,16 @@ def _inside_point(free: shapely.Geometry, near: tuple[float, float], fallback: t
     return (float(q.x), float(q.y))
 
 
+def _shape(asr: ASR) -> bytes:
+    """The boundary's coordinates as bytes: a cache key that changes exactly when the boundary does.
+
+    Not ``id(asr.boundary)``: a relabelled ASR gets a new boundary array, and a new array may take
+    the address of a freed one, so the caches keyed by it returned answers about an older boundary
+    (whether they did depended on the process's memory layout: the simulated runs changed with the
+    bytes of a module they never import)."""
+    return np.asarray(asr.boundary, dtype=float).tobytes()
+
+
 def exit_normal(asr: ASR, ex: Exit) -> np.ndarray:
     """Unit normal of the exit pointing out of the ASR (ASR frame)."""
     return _outward(asr, np.asarray(ex.a, float), np.asarray(ex.b, float))
@@ -472,7 +482,7 @@ class Planner:
         """Midpoints (ASR frame) of the unknown runs of ``asr`` still to be looked at."""
         looked = self.memory.looked.get(asr.id, [])
         # Called every control step: the answer only changes with the boundary or what was looked at.
-        key = (asr.id, id(asr.boundary), len(asr.boundary), tuple(asr.edges), len(looked))
+        key = (asr.id, _shape(asr), tuple(asr.edges), len(looked))
         if self._pending_key == key:
             return list(self._pending)
         seen = np.array(looked, dtype=float).reshape(-1, 2)
@@ -506,7 +516,7 @@ class Planner:
 
     def _geometry(self, asr: ASR, ex: Exit) -> tuple[np.ndarray, float]:
         """``exit_normal`` and ``_depth_beyond`` of ``ex`` (cached while the ASR's boundary stays)."""
-        key = (asr.id, id(asr.boundary), len(asr.boundary), ex.id, ex.a, ex.b)
+        key = (asr.id, _shape(asr), ex.id, ex.a, ex.b)
         got = self._geometry_cache.get(key)
         if got is None:
             if len(self._geometry_cache) > 4096:
@@ -565,7 +575,7 @@ class Planner:
     def _known_areas(self, view: MapView) -> list[tuple[int, shapely.Geometry]]:
         """Every ASR's polygon in the global frame, shrunk by ``known_margin`` (cached while the ASRs'
         boundaries and origins stay the same)."""
-        key = tuple((a.id, id(a.boundary), len(a.boundary), tuple(a.origin)) for a in view.asrs.values())
+        key = tuple((a.id, _shape(a), tuple(a.origin)) for a in view.asrs.values())
         if self._known_key != key:
             areas, polygons = [], []
             for a in view.asrs.values():
@@ -1362,7 +1372,8 @@ class Explorer:
         at their common exits, as one area, less ``asr``'s own surfaces (cached while the ASRs stay
         the same). Drifted neighbours overlap across walls; the current ASR's walls, seen in its own
         frame, are where they are, so a path out of it leaves through its exits."""
-        key = (asr.id, tuple((a.id, id(a.boundary), tuple(a.origin)) for a in view.asrs.values()))
+        shapes = tuple((a.id, _shape(a), tuple(a.origin)) for a in view.asrs.values())
+        key = (asr.id, tuple(asr.edges), shapes)
         if self._area_key != key:
             to_here = inverse(asr.origin)
             parts = [shapely.make_valid(shapely.Polygon(transform_points(compose(to_here, a.origin),

@@ -470,3 +470,18 @@ def test_a_corridor_end_seen_as_a_u_of_exit_edges_is_crossed_through_its_open_en
     a2 = ASR(2, 0.0, (0.0, 0.0, 0.0), b2, e2, (2.0, 1.5), exits=[door(2, 0, (2.5, 3.0), (1.5, 3.0))])
     g2 = Planner().plan(view([a2], 2, pose=(2.0, 1.0, 0.0)))
     assert g2.through == pytest.approx((2.0, 3.0 + P.through_distance))
+
+
+def test_the_planners_caches_follow_the_boundary_not_the_array_object():
+    """The caches were keyed by ``id(asr.boundary)``: a new boundary array at a freed one's address
+    (here: the same array changed in place) got the older boundary's answers."""
+    a = room(1, 0, 0, 6, 2, edges=("surface", "unknown", "surface", "surface"))
+    planner = Planner()
+    before = planner.pending_unknown(a)
+    a.boundary[1:3, 0] = 12.0  # the unknown east edge is now at x = 12, same array, same length
+    assert planner.pending_unknown(a) == Planner().pending_unknown(a) != before
+    ex = door(1, 0, (12.0, 0.5), (12.0, 1.5))
+    b = room(2, 0, 0, 6, 2)
+    got = planner._geometry(b, ex)
+    b.boundary[1:3, 0] = 14.0
+    assert planner._geometry(b, ex)[1] == Planner()._geometry(b, ex)[1] != got[1]
