@@ -50,8 +50,9 @@ class CycleParams:
     could do. Measured with 0.1: of the stored alignments on the five shared logs that failed only
     the aligned crosscheck at 0.3 m, every false one (by truth) left a centre outside the other ASR
     once aligned, while true ones kept both 0.15-0.26 m inside; Intel corrected gained two true
-    closures and no log a false one. But in the 14 simulated runs it moved five runs and one
-    (``lab`` seed 2) no longer finished exploring within the hour, so the default stays at
+    closures and no log a false one. But in the simulated runs it moved four runs and one (``lab``
+    seed 2) no longer finished exploring within the hour (so again once the explorer's cache fault
+    that made runs depend on memory layout was fixed), so the default stays at
     ``crosscheck_margin``'s 0.3. (Applied to the search-radius candidates too, 0.1 let a false
     closure through in ``lab`` seed 4, aligned 1.75 m off.)"""
 
