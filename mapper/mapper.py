@@ -97,13 +97,14 @@ class _ViewWork:
 
     def step(self, p: MapperParams) -> tuple[str, float] | None:
         """Compute the next stage; its name and time (s), or None when the view is done."""
+        stage = self.next_stage()
         tic = time.perf_counter()
-        if self.surf is None:
-            self.surf, stage = extract_surfaces(self.pts, p), "extract"
-        elif self.covers is None:
-            self.covers, stage = find_covers(self.surf, p), "exits"
-        elif self.view is None:
-            self.view, stage = build_view(self.surf, p, self.covers), "view"
+        if stage == "extract":
+            self.surf = extract_surfaces(self.pts, p)
+        elif stage == "exits":
+            self.covers = find_covers(self.surf, p)
+        elif stage == "view":
+            self.view = build_view(self.surf, p, self.covers)
         else:
             return None
         return stage, time.perf_counter() - tic
@@ -379,7 +380,7 @@ class Mapper:
         """Whether the robot centre (``pose``, ASR ``aid``'s frame) lies within ``rear_closure`` of
         one of ``aid``'s exits: standing in a doorway, where a view on the way is not unioned.
 
-        A view on the way is not unioned when taken standing in a doorway: this, or the scan's own
+        It is one of two tests for that: this, or the scan's own
         cover of a gap running through the robot (``View.in_doorway``; at the doorway's line the
         jambs are beside or behind the laser and the scan may show no gap at all, hence both).
         From a doorway the view sees into the space beyond, unbounded. In the simulated office

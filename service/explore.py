@@ -700,7 +700,7 @@ class Planner:
 
 
 def exit_run(asr: ASR, ex: Exit) -> np.ndarray | None:
-    """The boundary vertices (K, 2) of the run of exit edges whose chord ``ex`` is (from ``a`` to
+    """The boundary vertex indices (K,) of the run of exit edges whose chord ``ex`` is (from ``a`` to
     ``b`` along the boundary), or None (not the ASR's own exit, or the run is not all exit edges)."""
     b = np.asarray(asr.boundary, dtype=float)
     n = len(b)
@@ -716,7 +716,7 @@ def exit_run(asr: ASR, ex: Exit) -> np.ndarray | None:
         if asr.edges[idx[-1]] != "exit" or len(idx) > n:
             return None
         idx.append((idx[-1] + 1) % n)
-    return b[idx]
+    return np.array(idx)
 
 
 def _surface_line(asr: ASR, vertex: int, step: int, length: float = 0.5,
@@ -776,11 +776,10 @@ def crossing(asr: ASR, ex: Exit, p: ExploreParams) -> tuple[np.ndarray, np.ndarr
     what is left (the open end), on its own normal.
     """
     a, b = np.asarray(ex.a, dtype=float), np.asarray(ex.b, dtype=float)
-    run = exit_run(asr, ex)
-    if run is not None and len(run) > 2:
-        n_b = len(asr.boundary)
-        ia = int(np.argmin(np.hypot(*(np.asarray(asr.boundary, float) - a).T)))
-        ib = (ia + len(run) - 1) % n_b
+    idx = exit_run(asr, ex)
+    if idx is not None and len(idx) > 2:
+        run = np.asarray(asr.boundary, dtype=float)[idx]
+        ia, ib = int(idx[0]), int(idx[-1])
         tol = p.grazing_offset
         lead = _grazing(run, _surface_line(asr, ia, -1), tol)
         back = _grazing(run[::-1], _surface_line(asr, ib, +1), tol)
