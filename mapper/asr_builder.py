@@ -37,7 +37,7 @@ import numpy as np
 import shapely
 
 from mapper.cycles import centre_of
-from mapper.exits import segment_distance
+from mapper.jit import kernel
 from mapper.params import MapperParams
 from mapper.se2 import Pose, transform_points
 from mapper.types import ASR, Exit
@@ -56,22 +56,50 @@ def _pairs_within(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.ndarra
     on y and then by exact distance. The cost follows the candidates, not the product of the sizes
     of an ASR's boundary and label store.
     """
-    lo = np.minimum(seg[:, 0], seg[:, 1]) - tol  # (S, 2)
-    hi = np.maximum(seg[:, 0], seg[:, 1]) + tol
     order = np.argsort(p[:, 0], kind="stable")
-    xs = p[order, 0]
-    i0 = np.searchsorted(xs, lo[:, 0], side="left")
-    n = np.searchsorted(xs, hi[:, 0], side="right") - i0
-    n = np.maximum(n, 0)
-    si = np.repeat(np.arange(len(seg)), n)
-    pi = order[np.arange(len(si)) - np.repeat(np.cumsum(n) - n - i0, n)]
-    y = p[pi, 1]
-    ok = (y >= lo[si, 1]) & (y <= hi[si, 1])
-    pi, si = pi[ok], si[ok]
-    px, py = p[pi, 0], p[pi, 1]
-    d = segment_distance(px, py, seg[si])
-    near = d < tol
-    return pi[near], si[near], d[near]
+    return _pairs_in_boxes(np.ascontiguousarray(p[order]), order, np.ascontiguousarray(seg, dtype=float), tol)
+
+
+@kernel
+def _pairs_in_boxes(
+    ps: np.ndarray, order: np.ndarray, seg: np.ndarray, tol: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_pairs_within` over the points ``ps`` sorted by x (``order``: their indices before
+    sorting), segment by segment. Compiled (:mod:`mapper.jit`)."""
+    xs = ps[:, 0]
+    cap = 64
+    pi = np.empty(cap, dtype=np.int64)
+    si = np.empty(cap, dtype=np.int64)
+    dd = np.empty(cap)
+    n = 0
+    for k in range(seg.shape[0]):
+        ax, ay = seg[k, 0, 0], seg[k, 0, 1]
+        bx, by = seg[k, 1, 0], seg[k, 1, 1]
+        lo_y, hi_y = min(ay, by) - tol, max(ay, by) + tol
+        i0 = np.searchsorted(xs, min(ax, bx) - tol, side="left")
+        i1 = np.searchsorted(xs, max(ax, bx) + tol, side="right")
+        abx, aby = bx - ax, by - ay
+        den = max(abx * abx + aby * aby, 1e-18)
+        for i in range(i0, i1):
+            px, py = ps[i, 0], ps[i, 1]
+            if py < lo_y or py > hi_y:
+                continue
+            t = min(max(((px - ax) * abx + (py - ay) * aby) / den, 0.0), 1.0)
+            d = math.hypot(ax + t * abx - px, ay + t * aby - py)
+            if d < tol:
+                if n == cap:
+                    cap *= 2
+                    pi, si, dd = _grown(pi, cap), _grown(si, cap), _grown(dd, cap)
+                pi[n], si[n], dd[n] = order[i], k, d
+                n += 1
+    return pi[:n], si[:n], dd[:n]
+
+
+@kernel
+def _grown(a: np.ndarray, size: int) -> np.ndarray:
+    out = np.empty(size, dtype=a.dtype)
+    out[: len(a)] = a
+    return out
 
 
 def _nearest_segment(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
@@ -352,7 +380,8 @@ class AsrBuilder:
         return valid_polygon(np.asarray(simple.exterior.coords)[:-1]) if not simple.is_valid else simple
 
     def _ring(self) -> np.ndarray:
-        """Boundary vertices (V, 2), counter-clockwise, not closed, exit endpoints inserted."""
+        """Boundary vertices (V, 2), counter-clockwise, not closed, exit endpoints inserted (unless
+        inserting them would make the ring invalid)."""
         ring = self.polygon.exterior
         v = shapely.get_coordinates(ring)[:-1]
         if not shapely.is_ccw(ring):
@@ -377,7 +406,11 @@ class AsrBuilder:
         new = edges[e, 0] + tt[:, None] * (edges[e, 1] - edges[e, 0])
         # one vertex for coinciding insertions (the two ends of abutting exits)
         keep = np.append(True, np.hypot(*np.diff(new, axis=0).T) > tol)
-        return np.insert(v, e[keep] + 1, new[keep], axis=0)
+        out = np.insert(v, e[keep] + 1, new[keep], axis=0)
+        # A vertex of the ring can lie within rounding of another of its edges (a pinch the union
+        # left, valid by 1e-15 m); points inserted on that edge are rounded too and can cross it.
+        # Then the ring stays as it was: its exits' edges are found by their labels alone.
+        return out if shapely.is_valid(shapely.Polygon(out)) else v
 
     def _relabel(self) -> None:
         p = self.p

@@ -20,17 +20,19 @@ Each covering segment spans an interval of the sweep (from P's position to Q's, 
 for the point at fraction t along surface k). Where intervals nest, the outer one wins: it is nearer
 the robot and what lies inside it was seen *through* it (the second room behind a doorway). The two
 covers of one doorway (found from each jamb) span the same interval and become one exit.
-All candidates of all gaps are evaluated in a few broadcast numpy operations.
+Every gap's candidates are evaluated in one compiled loop (:mod:`mapper.jit`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from mapper.lines import Surfaces, _cross
+from mapper.jit import kernel
+from mapper.lines import Surfaces
 from mapper.params import MapperParams
 
 #: Labels of a gap's cover: an exit, a closed gap (labelled ``surface`` on the boundary), or open.
@@ -95,71 +97,71 @@ def segment_distance(px: np.ndarray, py: np.ndarray, seg: np.ndarray) -> np.ndar
     return np.hypot(qx - px, qy - py)
 
 
+@kernel
 def _shortest(
-    seg: np.ndarray, o: np.ndarray, pp: np.ndarray, gap: np.ndarray, right: np.ndarray, p: MapperParams
+    seg: np.ndarray, o: np.ndarray, pp: np.ndarray, gap: np.ndarray, right: np.ndarray, tol: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """For each gap, the shortest visible segment from its occluding point ``pp`` across the gap.
+    """For each gap, the shortest visible segment from its occluding point ``pp`` across the gap
+    (robot frame, m; the laser at ``o``).
 
-    Returns the surface index it lands on, its length (inf: none visible), the point and the
-    fraction along that surface.
-    """
-    m = len(seg)
-    # the surfaces across each gap, nearest in sweep order first: a window of them, since a cover
-    # lands within a few surfaces of its gap and the visibility test is quadratic in the window
+    The surfaces across gap g are those after ``gap[g]`` in sweep order when ``right[g]``, else
+    from ``gap[g]`` backwards: a window of ``_WINDOW`` of them, nearest first, since a cover lands
+    within a few surfaces of its gap. Each offers its closest point Q to P. Only the
+    ``_CANDIDATES`` shortest are tried (a longer one would be taken only when all of these are
+    hidden, and then the gap is wide open anyway), shortest first; equal lengths (a corner two
+    surfaces share) nearest in the window first, so the cover ends on the nearer surface's end. A
+    candidate is visible when both ends of every surface between P and Q in the window lie beyond
+    the line PQ as seen from the laser (by more than ``tol``, m). Returns the
+    surface index it lands on, its length (inf: none visible), the point Q and its fraction along
+    that surface. Compiled (:mod:`mapper.jit`): each gap's few candidates are tried in turn
+    without broadcasting all of them."""
+    m = seg.shape[0]
+    g_n = gap.shape[0]
     w = min(_WINDOW, m)
-    off = np.arange(w)
-    kw = np.where(right[:, None], gap[:, None] + 1 + off, gap[:, None] - off)  # (G, W)
-    valid = (kw >= 0) & (kw < m)
-    kw = np.clip(kw, 0, m - 1)
-    segw = seg[kw]  # (G, W, 2, 2)
-    px, py = pp[:, 0:1], pp[:, 1:2]
-    qx, qy, tq = closest_xy(px, py, segw)  # closest points Q on the window's surfaces
-    q = np.stack((qx, qy), axis=-1)
-    length = np.hypot(qx - px, qy - py)
-    length[~valid] = np.inf
-    # only the few shortest candidates of each gap are checked for visibility: a longer one is
-    # taken only when all of these are hidden, and then the gap is wide open anyway
     nc = min(_CANDIDATES, w)
-    cand = np.argpartition(length, nc - 1, axis=1)[:, :nc]  # (G, C) window positions
-    g_ = np.arange(len(gap))[:, None]
-    clen, cq, ctq = length[g_, cand], q[g_, cand], tq[g_, cand]
-    # The surfaces strictly between P and Q (window positions before Q's) must lie beyond the line
-    # PQ as seen from the laser. The candidates are tried shortest first (equal lengths: in the
-    # order above), each round only for the gaps whose shorter candidates were all hidden, so most
-    # gaps take one round: the first visible one is the shortest visible. A gap with none keeps its
-    # first candidate, at infinite length.
-    g = len(gap)
-    order = np.argsort(clen, axis=1, kind="stable")
-    pick = np.zeros(g, dtype=int)
-    best_len = np.full(g, np.inf)
-    todo = np.arange(g)
-    for r in range(nc):
-        c = order[todo, r]
-        lr = clen[todo, c]
-        finite = np.isfinite(lr)  # past the last finite candidate every other is infinite too
-        todo, c, lr = todo[finite], c[finite], lr[finite]
-        if not len(todo):
-            break
-        cpos = cand[todo, c]
-        wv = int(cpos.max())
-        hidden = np.zeros(len(todo), dtype=bool)
-        if wv > 0:
-            ppt = pp[todo]
-            d = cq[todo, c] - ppt  # (T, 2) line direction
-            dn = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
-            sgn = np.where(_cross(d, o - ppt) >= 0, 1.0, -1.0)  # the laser's side of the line
-            ends = segw[todo, :wv].reshape(len(todo), 2 * wv, 2) - ppt[:, None, :]  # (T, 2 wv, 2)
-            side_e = _cross(d[:, None, :], ends) / dn[:, None]
-            in_front = (side_e * sgn[:, None] > p.visibility_tolerance).reshape(len(todo), wv, 2).any(-1)
-            inside = (off[None, :wv] < cpos[:, None]) & valid[todo, :wv]
-            hidden = (inside & in_front).any(-1)
-        seen = todo[~hidden]
-        pick[seen], best_len[seen] = c[~hidden], lr[~hidden]
-        todo = todo[hidden]
-    g1 = np.arange(g)
-    best = kw[g1, cand[g1, pick]]
-    qb = cq[g1, pick]
-    tqb = ctq[g1, pick]
+    best = np.zeros(g_n, dtype=np.int64)
+    best_len = np.full(g_n, np.inf)
+    qb = np.zeros((g_n, 2))
+    tqb = np.zeros(g_n)
+    kw = np.empty(w, dtype=np.int64)
+    length = np.empty(w)
+    qx, qy, tq = np.empty(w), np.empty(w), np.empty(w)
+    for g in range(g_n):
+        px, py = pp[g, 0], pp[g, 1]
+        for j in range(w):
+            k = gap[g] + 1 + j if right[g] else gap[g] - j
+            kw[j] = k
+            if k < 0 or k >= m:
+                length[j] = np.inf
+                continue
+            ax, ay = seg[k, 0, 0], seg[k, 0, 1]
+            abx, aby = seg[k, 1, 0] - ax, seg[k, 1, 1] - ay
+            den = max(abx * abx + aby * aby, 1e-18)
+            t = min(max(((px - ax) * abx + (py - ay) * aby) / den, 0.0), 1.0)
+            qx[j], qy[j], tq[j] = ax + t * abx, ay + t * aby, t
+            length[j] = math.hypot(qx[j] - px, qy[j] - py)
+        order = np.argsort(length, kind="mergesort")  # stable: equal lengths nearest first
+        for r in range(nc):
+            c = order[r]
+            if not length[c] < np.inf:
+                break
+            dx, dy = qx[c] - px, qy[c] - py
+            dn = max(math.hypot(dx, dy), 1e-9)
+            sgn = 1.0 if dx * (o[1] - py) - dy * (o[0] - px) >= 0 else -1.0  # the laser's side of PQ
+            hidden = False
+            for j in range(c):
+                k = kw[j]
+                if 0 <= k < m:
+                    for end in range(2):
+                        ex, ey = seg[k, end, 0] - px, seg[k, end, 1] - py
+                        if (dx * ey - dy * ex) / dn * sgn > tol:
+                            hidden = True
+                if hidden:
+                    break
+            if not hidden:
+                best[g], best_len[g] = kw[c], length[c]
+                qb[g, 0], qb[g, 1], tqb[g] = qx[c], qy[c], tq[c]
+                break
     return best, best_len, qb, tqb
 
 
@@ -188,7 +190,7 @@ def find_covers(surf: Surfaces, p: MapperParams) -> Covers:
     g = len(gap)
     found = _shortest(
         seg, o, np.concatenate([pp, alt[near]]), np.concatenate([gap, gap[near]]),
-        np.concatenate([right, right[near]]), p,
+        np.concatenate([right, right[near]]), p.visibility_tolerance,
     )
     best, best_len, qb, tqb = (f[:g] for f in found)
     pos_p = np.where(right, 2 * gap + 1, 2 * gap + 2).astype(float)

@@ -5,9 +5,7 @@
    points jump farther than Borges & Aldon's adaptive breakpoint distance
    ``D = r * sin(dphi) / sin(lambda - dphi) + 3 sigma`` (floored at ``breakpoint_floor``).
 3. Each cluster is split recursively at the point farthest from its chord (iterative end-point
-   fit). All clusters split at once: each round is a handful of numpy operations over every point,
-   and the rounds number the recursion depth (log of the points per cluster), so no Python loop
-   runs per beam or per segment.
+   fit), in one compiled loop (:mod:`mapper.jit`; no Python loop runs per beam or per segment).
 4. Every piece is fitted by orthogonal (total least squares) regression; neighbouring pieces of one
    cluster whose lines agree are merged and refitted. Endpoints are the first and last points
    projected onto the fitted line.
@@ -22,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mapper.jit import kernel
 from mapper.params import MapperParams
 from mapper.types import Scan
 
@@ -104,59 +103,65 @@ def _breaks(pts: ScanPoints, p: MapperParams) -> np.ndarray:
     return brk
 
 
-def _ranges_index(s: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Concatenated indices s[i]..e[i] (inclusive) of every piece; their piece ids and run starts."""
-    lengths = e - s + 1
-    starts = np.cumsum(lengths) - lengths
-    owner = np.repeat(np.arange(len(s)), lengths)
-    idx = np.arange(len(owner)) + np.repeat(s - starts, lengths)
-    return idx, owner, starts
-
-
+@kernel
 def _split(xy: np.ndarray, s: np.ndarray, e: np.ndarray, thr: float) -> tuple[np.ndarray, np.ndarray]:
-    """Iterative end-point fit of all pieces at once; returns the final (start, end) point indices."""
-    done_s, done_e = [], []
-    x, y = xy[:, 0], xy[:, 1]
-    while len(s):
-        inner = e - s >= 2
-        if not inner.all():
-            done_s.append(s[~inner])
-            done_e.append(e[~inner])
-            s, e = s[inner], e[inner]
-            if not len(s):
-                break
-        idx, owner, starts = _ranges_index(s + 1, e - 1)
-        ax, ay = x[s], y[s]
-        abx, aby = x[e] - ax, y[e] - ay
-        norm = np.maximum(np.hypot(abx, aby), 1e-9)
-        d = np.abs(abx[owner] * (y[idx] - ay[owner]) - aby[owner] * (x[idx] - ax[owner])) / norm[owner]
-        dmax = np.maximum.reduceat(d, starts)
-        at_max = np.flatnonzero(d == dmax[owner])
-        # owners are sorted, so the first maximum of each piece is found by a binary search
-        m = idx[at_max[np.searchsorted(owner[at_max], np.arange(len(s)))]]
-        split = dmax > thr
-        if not split.all():
-            done_s.append(s[~split])
-            done_e.append(e[~split])
-        s = np.concatenate([s[split], m[split]])
-        e = np.concatenate([m[split], e[split]])
-    s, e = np.concatenate(done_s), np.concatenate(done_e)
-    order = np.argsort(s, kind="stable")
-    return s[order], e[order]
+    """Iterative end-point fit: each cluster (points ``s[i]..e[i]``) split at the first of its
+    inner points farthest from its chord while that is more than ``thr`` (m) away. Returns the
+    pieces' (start, end) point indices in sweep order. Compiled (:mod:`mapper.jit`)."""
+    out_s = np.empty(len(xy), dtype=np.int64)
+    out_e = np.empty(len(xy), dtype=np.int64)
+    n = 0
+    stack = np.empty((len(xy) + 1, 2), dtype=np.int64)  # pieces to do; the top is the leftmost
+    for c in range(len(s)):
+        stack[0, 0], stack[0, 1] = s[c], e[c]
+        top = 1
+        while top:
+            top -= 1
+            a, b = stack[top, 0], stack[top, 1]
+            far, at = -1.0, -1
+            if b - a >= 2:
+                ax, ay = xy[a, 0], xy[a, 1]
+                abx, aby = xy[b, 0] - ax, xy[b, 1] - ay
+                norm = max(math.hypot(abx, aby), 1e-9)
+                for k in range(a + 1, b):
+                    d = abs(abx * (xy[k, 1] - ay) - aby * (xy[k, 0] - ax)) / norm
+                    if d > far:
+                        far, at = d, k
+            if far > thr:
+                stack[top, 0], stack[top, 1] = at, b
+                stack[top + 1, 0], stack[top + 1, 1] = a, at
+                top += 2
+            else:
+                out_s[n], out_e[n] = a, b
+                n += 1
+    return out_s[:n], out_e[:n]
 
 
+@kernel
 def _fit(xy: np.ndarray, s: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Total least squares lines of the pieces: centroids (M, 2) and unit directions (M, 2)."""
-    idx, owner, starts = _ranges_index(s, e)
-    n = (e - s + 1).astype(float)
-    p = xy[idx]
-    c = np.add.reduceat(p, starts, axis=0) / n[:, None]
-    q = p - c[owner]
-    sxx = np.add.reduceat(q[:, 0] * q[:, 0], starts)
-    syy = np.add.reduceat(q[:, 1] * q[:, 1], starts)
-    sxy = np.add.reduceat(q[:, 0] * q[:, 1], starts)
-    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
-    return c, np.stack([np.cos(phi), np.sin(phi)], axis=1)
+    """Total least squares lines of the pieces (points ``s[i]..e[i]``): centroids (M, 2) and unit
+    directions (M, 2), robot frame. Compiled (:mod:`mapper.jit`)."""
+    m = len(s)
+    c = np.empty((m, 2))
+    u = np.empty((m, 2))
+    for i in range(m):
+        n = e[i] - s[i] + 1
+        cx = cy = 0.0
+        for k in range(s[i], e[i] + 1):
+            cx += xy[k, 0]
+            cy += xy[k, 1]
+        cx /= n
+        cy /= n
+        sxx = syy = sxy = 0.0
+        for k in range(s[i], e[i] + 1):
+            qx, qy = xy[k, 0] - cx, xy[k, 1] - cy
+            sxx += qx * qx
+            syy += qy * qy
+            sxy += qx * qy
+        phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+        c[i, 0], c[i, 1] = cx, cy
+        u[i, 0], u[i, 1] = math.cos(phi), math.sin(phi)
+    return c, u
 
 
 def _snap_corners(seg: np.ndarray, cluster: np.ndarray, c: np.ndarray, u: np.ndarray, snap: float) -> None:

@@ -62,6 +62,7 @@ from dataclasses import dataclass
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
+from mapper.jit import kernel
 from mapper.nearest import point_tree
 from mapper.params import MapperParams
 from mapper.se2 import Pose, compose, transform_points, wrap
@@ -91,6 +92,7 @@ class Match:
     reason: str
 
 
+@kernel
 def _chords(xy: np.ndarray, max_gap: float) -> tuple[np.ndarray, np.ndarray]:
     """Directions and surface angles of a sweep (rad, in the frame of ``xy``), both from the chords
     between points ``_STRIDE`` apart.
@@ -99,34 +101,53 @@ def _chords(xy: np.ndarray, max_gap: float) -> tuple[np.ndarray, np.ndarray]:
     histogram's samples. *Surface angles*, one per point: the direction of the chord between its
     neighbours two beams either side, when they are close together, or farther apart (a wall seen
     at a grazing angle) but in line with the point; NaN otherwise (an isolated point: a leg, a
-    corner)."""
-    ang = np.full(len(xy), np.nan)
-    if len(xy) <= _STRIDE:
+    corner). Compiled (:mod:`mapper.jit`): one pass instead of about 20 numpy calls."""
+    k = xy.shape[0]
+    ang = np.full(k, np.nan)
+    if k <= _STRIDE:
         return np.zeros(0), ang
-    d = xy[_STRIDE:] - xy[:-_STRIDE]
-    dx, dy = d[:, 0], d[:, 1]
-    n = np.hypot(dx, dy)
-    a = np.arctan2(dy, dx)
     h = _STRIDE // 2
-    r = xy[h:-h] - xy[:-_STRIDE]
-    off = np.abs(dx * r[:, 1] - dy * r[:, 0]) / np.maximum(n, 1e-9)  # of the point from the chord
-    short = n < max_gap
-    ang[h:-h] = np.where((n > 0.02) & (short | ((n < 8.0 * max_gap) & (off < 0.05))), a, np.nan)
-    return np.mod(a[(n > 0.05) & short], np.pi), ang
+    dirs = np.empty(k - _STRIDE)
+    nd = 0
+    for i in range(k - _STRIDE):
+        dx = xy[i + _STRIDE, 0] - xy[i, 0]
+        dy = xy[i + _STRIDE, 1] - xy[i, 1]
+        n = math.hypot(dx, dy)
+        a = math.atan2(dy, dx)
+        short = n < max_gap
+        if n > 0.02:
+            if short:
+                ang[i + h] = a
+            elif n < 8.0 * max_gap:
+                rx = xy[i + h, 0] - xy[i, 0]
+                ry = xy[i + h, 1] - xy[i, 1]
+                if abs(dx * ry - dy * rx) / max(n, 1e-9) < 0.05:  # the point's offset from the chord
+                    ang[i + h] = a
+        if n > 0.05 and short:
+            dirs[nd] = a % math.pi
+            nd += 1
+    return dirs[:nd], ang
 
 
-def _axis_weights(angle: np.ndarray, alpha: float) -> np.ndarray:
-    """How much each point tells about position along u (the direction ``alpha``) and along v
-    (columns 0 and 1 of the (K, 2) result): the component of its surface's normal on that axis. A
-    wall along u says nothing about u (its points only crowd where the laser was, which drags a
-    match back to the reference's viewpoint); a wall across u says all. Isolated points (surface
-    angle NaN: legs) tell about both."""
+@kernel
+def _axis_weight(angle: float, alpha: float) -> tuple[float, float]:
+    """How much a point tells about position along u (the direction ``alpha``) and along v: the
+    components of its surface's normal on the two axes (its surface angle ``angle``; rad, one
+    frame). A wall along u says nothing about u (its points only crowd where the laser was, which
+    drags a match back to the reference's viewpoint); a wall across u says all. An isolated point
+    (surface angle NaN: a leg) tells about both."""
     rel = angle - alpha
-    w = np.empty((len(rel), 2))
-    np.sin(rel, out=w[:, 0])
-    np.cos(rel, out=w[:, 1])
-    np.abs(w, out=w)
-    w[np.isnan(rel)] = 1.0
+    if math.isnan(rel):
+        return 1.0, 1.0
+    return abs(math.sin(rel)), abs(math.cos(rel))
+
+
+@kernel
+def _axis_weights(angle: np.ndarray, alpha: float) -> np.ndarray:
+    """:func:`_axis_weight` of each of the surface angles ``angle`` (K,): columns u and v (K, 2)."""
+    w = np.empty((angle.shape[0], 2))
+    for i in range(angle.shape[0]):
+        w[i, 0], w[i, 1] = _axis_weight(angle[i], alpha)
     return w
 
 
@@ -138,13 +159,14 @@ def _hist_circular(angles: np.ndarray, nbins: int) -> np.ndarray:
     return np.convolve(hp, _SMOOTH, mode="valid")
 
 
+@kernel
 def _peak(c: np.ndarray) -> tuple[float, int, float]:
     """The maximum of c: its index refined by a parabola through it and its neighbours, its index,
     and its value."""
-    i = int(c.argmax())
-    top = float(c[i])
+    i = int(np.argmax(c))
+    top = c[i]
     if 0 < i < len(c) - 1:
-        lo, hi = float(c[i - 1]), float(c[i + 1])
+        lo, hi = c[i - 1], c[i + 1]
         den = lo - 2.0 * top + hi
         if den < 0:
             return i + 0.5 * (lo - hi) / den, i, top
@@ -169,6 +191,8 @@ class Localiser:
         self._rot_shifts = np.arange(-w, w + 1)
         self._rot_index = (np.arange(self._nb)[None, :] + self._rot_shifts[:, None]) % self._nb
         self._tw = math.ceil(params.max_translation / params.xy_bin)
+        self._gates = np.geomspace(params.refine_start, params.refine_inlier, params.refine_iterations)
+        self._gates = self._gates.tolist()  # ICP's shrinking correspondence gates (m)
         self.reset()
 
     def reset(self, pose: Pose = (0.0, 0.0, 0.0)) -> None:
@@ -275,24 +299,16 @@ class Localiser:
         tree = self._ref_tree
         kf = self.kf
         x, y, th = float(kf.x[0]), float(kf.x[1]), float(kf.x[2])
-        for gate in np.geomspace(p.refine_start, p.refine_inlier, p.refine_iterations).tolist():
-            cur = transform_points((x, y, th), xy)
-            d, j = tree.query(cur, distance_upper_bound=gate)
-            ok = d < np.inf
-            if np.count_nonzero(ok) < 20:
+        xy = np.ascontiguousarray(xy, dtype=float)
+        cur = transform_points((x, y, th), xy)
+        for gate in self._gates:
+            _, j = tree.query(cur, distance_upper_bound=gate)
+            n, rot, tx, ty, x, y, th = _icp_step(xy, ref, j, cur, x, y, th)
+            if n < 20:
                 return Match(self.pose, 0.0, 0.0, 0.0, False, "refine: too few pairs")
-            a, b = cur[ok], ref[j[ok]]
-            ma, mb = a.mean(axis=0), b.mean(axis=0)
-            h = (a - ma).T @ (b - mb)
-            rot = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])  # the rigid motion a -> b
-            c, s = math.cos(rot), math.sin(rot)
-            tx = float(mb[0] - (c * ma[0] - s * ma[1]))
-            ty = float(mb[1] - (s * ma[0] + c * ma[1]))
-            x, y, th = compose((tx, ty, rot), (x, y, th))
             if gate == p.refine_inlier and abs(rot) + abs(tx) + abs(ty) < 1e-5:
                 break
-        cur = transform_points((x, y, th), xy)
-        d, j = tree.query(cur, distance_upper_bound=p.refine_inlier)
+        d, j = tree.query(cur, distance_upper_bound=p.refine_inlier)  # cur: at (x, y, th)
         ok = d < np.inf
         inliers = float(ok.mean())
         pose = (x, y, wrap(th))
@@ -332,37 +348,22 @@ class Localiser:
         dirs, ang = _chords(xy, p.direction_max_gap)
         if len(dirs) < 10:
             return None
-        bins = np.floor(np.mod(dirs + th, np.pi) * (self._nb / np.pi)).astype(int) % self._nb
-        hc = np.bincount(bins, minlength=self._nb).astype(float)
-        c = self._hr_shifted @ hc
+        c, hc_norm = _rotation_correlation(dirs, th, self._hr_shifted)
         s, _, top = _peak(c)
-        q_th = _norm_peak(top, math.sqrt(hc @ hc), self._hr_norm)
+        q_th = _norm_peak(top, hc_norm, self._hr_norm)
         th_m = wrap(th + (s - (len(c) - 1) / 2.0) * p.angle_bin)
         if q_th < p.min_quality:
             return Match((x, y, th_m), q_th, 0.0, 0.0, False, "rotation quality")
-
-        # scan points at (x, y, th_m), rotated by -alpha into the reference's main axes (u, v),
-        # as indices into the side-by-side u|v reference histogram (outside: the zero window)
-        m = _rot(th_m - self._alpha)
-        org = _rot(-self._alpha) @ np.array([x, y]) - self._uv0
-        b = np.floor((xy @ m.T + org) * (1.0 / p.xy_bin)).astype(int)
-        tw, out = self._tw, len(self._huv) - 1 - self._tw
-        idx = np.where((b >= 0) & (b < self._nuv), b + self._offsets, out)  # (K, 2)
-        # C(d) = sum_b h_scan(b) h_ref(b + d): the scan's histogram (each point weighted on each axis
-        # by its surface normal's component) times the reference's windows; the sink's window is 0
-        w = _axis_weights(ang + th_m, self._alpha)  # (K, 2)
-        h = np.bincount(idx.ravel(), weights=w.ravel(), minlength=len(self._huv))
-        split = self._offsets[1]
-        cu = h[tw:split] @ self._windows[: split - tw]
-        cv = h[split : len(h) - tw] @ self._windows[split - tw :]
+        tw = self._tw
+        # scan points at (x, y, th_m) in the reference's main axes (u, v), correlated with its histograms
+        cu, cv, norm_u, norm_v, info_u, info_v = _translation_correlation(
+            xy, ang, x, y, th_m, self._alpha, self._uv0, self._nuv, self._offsets, self._huv, tw,
+            1.0 / p.xy_bin)
         su, iu, top_u = _peak(cu)
         sv, iv, top_v = _peak(cv)
         shifts = np.array([(su - tw) * p.xy_bin, (sv - tw) * p.xy_bin])
-        h[out] = 0.0
-        h *= h
-        norm_u, norm_v = math.sqrt(h[:split].sum()), math.sqrt(h[split:].sum())
         # An axis few surfaces face (the along-corridor one) counts only as much as they are there.
-        info_u, info_v = (w.sum(axis=0) / (len(w) * p.axis_info_full)).tolist()
+        info_u, info_v = info_u / (len(xy) * p.axis_info_full), info_v / (len(xy) * p.axis_info_full)
         qs = (
             _norm_peak(top_u, norm_u, self._huv_norm[0])
             * _prominence(cu, iu, p.prominence_bins, p.prominence_full)
@@ -399,6 +400,130 @@ class Localiser:
         return None
 
 
+@kernel
+def _rotation_correlation(dirs: np.ndarray, th: float, hr_shifted: np.ndarray) -> tuple[np.ndarray, float]:
+    """The rotation correlation of :meth:`Localiser.correct`: the scan's chord directions ``dirs``
+    (rad, robot frame) turned by ``th`` (rad) into a histogram H_c of ``nb`` bins over [0, pi),
+    then C(s) = sum_b H_c(b) H_r(b + s) for each row s of ``hr_shifted`` (shifts, nb), the
+    reference's histogram shifted; and the norm of H_c. Compiled (:mod:`mapper.jit`)."""
+    nb = hr_shifted.shape[1]
+    hc = np.zeros(nb)
+    scale = nb / math.pi
+    for d in dirs:
+        hc[math.floor(((d + th) % math.pi) * scale) % nb] += 1.0
+    c = np.zeros(hr_shifted.shape[0])
+    norm = 0.0
+    for b in range(nb):
+        v = hc[b]
+        if v != 0.0:
+            norm += v * v
+            for k in range(hr_shifted.shape[0]):
+                c[k] += hr_shifted[k, b] * v
+    return c, math.sqrt(norm)
+
+
+@kernel
+def _translation_correlation(
+    xy: np.ndarray, ang: np.ndarray, x: float, y: float, th: float, alpha: float, uv0: np.ndarray,
+    nuv: np.ndarray, offsets: np.ndarray, huv: np.ndarray, tw: int, inv_bin: float,
+) -> tuple[np.ndarray, np.ndarray, float, float, float, float]:
+    """The translation correlations of :meth:`Localiser.correct`. The scan points ``xy`` (K, 2,
+    robot frame) placed at ``(x, y, th)`` (ASR frame) and rotated by ``-alpha`` into the
+    reference's main axes (u, v) fall into bins of ``1 / inv_bin`` m from ``uv0``, weighted on each
+    axis by :func:`_axis_weight` (surface angles ``ang``, rad, robot frame). ``huv`` holds the
+    reference's u and v histograms side by side, bin 0 of each at ``offsets``, each padded by the
+    search window ``tw``, then a zero window: a point outside the reference's ``nuv`` bins goes
+    there. Returns C_u(d) and C_v(d) = sum_b h_scan(b) h_ref(b + d),
+    d = -tw..tw; the norms of the scan's u and v histograms; the sums of the points' u and v
+    weights. Compiled (:mod:`mapper.jit`): it replaces a bincount and two windowed products."""
+    n_h = huv.shape[0]
+    out = n_h - 1 - tw
+    h = np.zeros(n_h)
+    cm, sm = math.cos(th - alpha), math.sin(th - alpha)
+    ca, sa = math.cos(-alpha), math.sin(-alpha)
+    org_u, org_v = ca * x - sa * y - uv0[0], sa * x + ca * y - uv0[1]
+    wsum_u = wsum_v = 0.0
+    for i in range(xy.shape[0]):
+        bu = math.floor((xy[i, 0] * cm + xy[i, 1] * -sm + org_u) * inv_bin)
+        bv = math.floor((xy[i, 0] * sm + xy[i, 1] * cm + org_v) * inv_bin)
+        wu, wv = _axis_weight(ang[i] + th, alpha)
+        wsum_u += wu
+        wsum_v += wv
+        h[bu + offsets[0] if 0 <= bu < nuv[0] else out] += wu
+        h[bv + offsets[1] if 0 <= bv < nuv[1] else out] += wv
+    split = offsets[1]
+    width = 2 * tw + 1
+    cu, cv = np.zeros(width), np.zeros(width)
+    for r in range(split - tw):
+        v = h[tw + r]
+        if v != 0.0:
+            for k in range(width):
+                cu[k] += v * huv[r + k]
+    for r in range(n_h - tw - split):
+        v = h[split + r]
+        if v != 0.0:
+            for k in range(width):
+                cv[k] += v * huv[split - tw + r + k]
+    h[out] = 0.0
+    norm_u = norm_v = 0.0
+    for b in range(split):
+        norm_u += h[b] * h[b]
+    for b in range(split, n_h):
+        norm_v += h[b] * h[b]
+    return cu, cv, math.sqrt(norm_u), math.sqrt(norm_v), wsum_u, wsum_v
+
+
+@kernel
+def _icp_step(
+    xy: np.ndarray, ref: np.ndarray, j: np.ndarray, cur: np.ndarray, x: float, y: float, th: float
+) -> tuple[int, float, float, float, float, float, float]:
+    """One point-to-point ICP step of :meth:`Localiser.refine`. ``xy`` (K, 2): the scan (robot
+    frame); ``cur`` (K, 2): the same points at the pose ``(x, y, th)`` (ASR frame, m, rad);
+    ``j``: each point's nearest reference point in ``ref`` (M, 2, ASR frame), M where none lies
+    within the gate. Returns the number of pairs, the rigid motion of the paired points onto
+    their partners (rot, tx, ty: rad, m, m; the closed form of Arun et al.), and the moved pose
+    ``(tx, ty, rot) ⊕ (x, y, th)``, into which ``cur`` is rewritten. With fewer than 20 pairs,
+    nothing moves. Compiled (:mod:`mapper.jit`): one call instead of about 20 numpy calls."""
+    m = ref.shape[0]
+    n = 0
+    sax = say = sbx = sby = 0.0
+    for i in range(j.shape[0]):
+        k = j[i]
+        if k < m:
+            n += 1
+            sax += cur[i, 0]
+            say += cur[i, 1]
+            sbx += ref[k, 0]
+            sby += ref[k, 1]
+    if n < 20:
+        return n, 0.0, 0.0, 0.0, x, y, th
+    max_, may, mbx, mby = sax / n, say / n, sbx / n, sby / n
+    h00 = h01 = h10 = h11 = 0.0
+    for i in range(j.shape[0]):
+        k = j[i]
+        if k < m:
+            ax, ay = cur[i, 0] - max_, cur[i, 1] - may
+            bx, by = ref[k, 0] - mbx, ref[k, 1] - mby
+            h00 += ax * bx
+            h01 += ax * by
+            h10 += ay * bx
+            h11 += ay * by
+    rot = math.atan2(h01 - h10, h00 + h11)
+    c, s = math.cos(rot), math.sin(rot)
+    tx = mbx - (c * max_ - s * may)
+    ty = mby - (s * max_ + c * may)
+    nx, ny = tx + c * x - s * y, ty + s * x + c * y
+    nth = np.fmod(rot + th + math.pi, 2.0 * math.pi)  # wrapped to (-pi, pi] as se2.wrap
+    if nth <= 0.0:
+        nth += 2.0 * math.pi
+    nth -= math.pi
+    cn, sn = math.cos(nth), math.sin(nth)
+    for i in range(xy.shape[0]):
+        cur[i, 0] = nx + cn * xy[i, 0] - sn * xy[i, 1]
+        cur[i, 1] = ny + sn * xy[i, 0] + cn * xy[i, 1]
+    return n, rot, tx, ty, nx, ny, nth
+
+
 def _densify(r: np.ndarray, w: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
     """Points (N, 2) and surface angles (N,) of a reference scan (points ``r`` in sweep order and
     their surface angles ``w``, NaN off surfaces), with points added every ``spacing`` metres between
@@ -429,6 +554,7 @@ def _norm_peak(peak: float, norm_a: float, norm_b: float) -> float:
     return peak / den if den > 0 else 0.0
 
 
+@kernel
 def _prominence(c: np.ndarray, i: int, bins: int, full: float) -> float:
     """How distinct the peak ``c[i]`` of a translation correlation ``c`` is, 0..1: 1 - (the largest
     value ``bins`` or more bins away from the peak) / (the peak), scaled so that ``full`` counts as 1.
@@ -436,11 +562,11 @@ def _prominence(c: np.ndarray, i: int, bins: int, full: float) -> float:
     A histogram without structure along an axis (the walls of a corridor, seen along it) correlates
     almost equally at every shift: its cosine similarity is high, but its peak sits wherever the
     two point sets' extents overlap most, which drags the estimate back towards the reference."""
-    peak = float(c[i])
+    peak = c[i]
     if peak <= 0.0:
         return 0.0
     lo, hi = c[: max(i - bins + 1, 0)], c[i + bins :]
-    rest = max(float(lo.max()) if len(lo) else 0.0, float(hi.max()) if len(hi) else 0.0)
+    rest = max(lo.max() if len(lo) else 0.0, hi.max() if len(hi) else 0.0)
     return min(max((1.0 - rest / peak) / full, 0.0), 1.0)
 
 

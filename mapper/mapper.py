@@ -72,6 +72,7 @@ from mapper.se2 import Pose, between, compose, interpolate, inverse, transform_p
 from mapper.topology import Transition
 from mapper.types import ASR, Exit, Odometry, Scan
 from mapper.view import View, build_view
+from mapper.warmup import warm_up
 
 _ODOM_KEEP = 4096  # odometry readings kept for interpolation (minutes at 20 Hz)
 #: s. Pipelined, a scan that has spent less than this relabels the ASR its union grew (a view's
@@ -144,15 +145,31 @@ def _segments_cross(p0, p1, a, b) -> tuple[bool, tuple[float, float]]:
     return False, (0.0, 0.0)
 
 
+_warm = False
+
+
+def _warm_up() -> None:
+    """:func:`mapper.warmup.warm_up`, once per process (the mappers it makes skip it)."""
+    global _warm
+    if not _warm:
+        _warm = True
+        warm_up()
+
+
 class Mapper:
     """ASRs from odometry and laser scans; see the module docstring.
 
     ``asrs``: id -> :class:`~mapper.types.ASR`; ``current``: id of the ASR the robot is in (None
     before the first scan); ``pose``: robot pose in the current ASR frame; ``global_pose``: in the
     global frame; ``timing``: seconds spent per stage on the last scan (for benchmarks).
+
+    The first mapper made in a process compiles the compiled kernels (:mod:`mapper.warmup`): about
+    0.3-1.5 s with numba's disk cache, about 10 s the first time on a machine, here rather than
+    inside the first scans.
     """
 
     def __init__(self, params: MapperParams | None = None, defer_views: bool = False):
+        _warm_up()
         self.params = params or MapperParams()
         self.defer_views = defer_views
         self._asrs: dict[int, ASR] = {}

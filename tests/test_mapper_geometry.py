@@ -243,3 +243,20 @@ def test_a_doorway_beside_the_path_is_not_taken_as_the_way_back(y0):
     the simulated worlds it rejected true entrances, and three of nine runs ended early."""
     m, _, _ = _side_doorway_run(y0)
     assert m.current == max(m.asrs)
+
+
+def test_exit_ends_inserted_into_a_ring_pinched_within_rounding_leave_it_valid():
+    # A ring whose vertex D lies 1e-15 m from its edge AB (the union can leave such a pinch):
+    # valid, but the exits' ends projected onto AB, rounded, cross D (found on the Intel log).
+    from mapper.asr_builder import AsrBuilder
+
+    a, b = np.array([10.0, -7.0]), np.array([14.022741662069002, -4.030564107401152])
+    ring = [a, b, (12.241080126509694, -1.61691911015975), (11.81023374793105, -5.6637538483305185),
+            (8.218338464440691, -4.586355002758598)]
+    builder = AsrBuilder(1, 0.0, (0.0, 0.0, 0.0), MapperParams())
+    builder.polygon = shapely.Polygon(ring)
+    assert builder.polygon.is_valid
+    nrm = np.array([-(b - a)[1], (b - a)[0]]) / np.hypot(*(b - a)) * 0.01
+    ends = [a + f * (b - a) + nrm for f in (0.2, 0.4, 0.5, 0.7)]
+    builder.exit_segments = np.array([[ends[0], ends[1]], [ends[2], ends[3]]])
+    assert shapely.Polygon(builder._ring()).is_valid
