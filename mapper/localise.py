@@ -75,7 +75,7 @@ _NOT_MEASURED = 1e6
 _DENSE_GAP = 0.15
 # What _build_reference makes (never changed in place): kept and restored as a whole.
 _REFERENCE = (
-    "_refs", "_ref_ready", "_hr", "_hr_shifted", "_hr_norm", "_alpha", "_uv0", "_huv", "_offsets", "_windows",
+    "_refs", "_ref_ready", "_hr", "_hr_shifted", "_hr_norm", "_alpha", "_uv0", "_huv", "_offsets",
     "_nuv", "_huv_norm", "_ref_points", "_ref_angles", "_ref_tree",
 )
 
@@ -266,22 +266,12 @@ class Localiser:
         self._hr_shifted = self._hr[self._rot_index]  # (shifts, bins): the rotation correlation is one matvec
         self._hr_norm = float(np.sqrt(self._hr @ self._hr))
         self._alpha = (_peak(self._hr)[0] + 0.5) * p.angle_bin
-        uv = pts @ _rot(self._alpha)  # rows rotated by -alpha
-        self._uv0 = uv.min(axis=0) - p.max_translation
-        nb = np.floor((uv.max(axis=0) + p.max_translation - self._uv0) / p.xy_bin).astype(int) + 1
-        b = np.floor((uv - self._uv0) / p.xy_bin).astype(int)
-        w = _axis_weights(wts, self._alpha)
-        hu = np.bincount(b[:, 0], weights=w[:, 0], minlength=nb[0])
-        hv = np.bincount(b[:, 1], weights=w[:, 1], minlength=nb[1])
         tw = self._tw
-        # u and v histograms side by side, each padded by the search window, then a zero window
-        # where scan points beyond the reference fall (index sink - tw)
-        self._huv = np.concatenate([np.zeros(tw), hu, np.zeros(2 * tw), hv, np.zeros(2 * tw + 1)])
-        self._offsets = np.array([tw, len(hu) + 3 * tw])  # where bin 0 of u and of v sit
-        # row r: the reference around bin r + tw, shifts -tw..tw (a view, no copy)
-        self._windows = np.lib.stride_tricks.sliding_window_view(self._huv, 2 * tw + 1)
-        self._nuv = nb
-        self._huv_norm = (float(np.sqrt(hu @ hu)), float(np.sqrt(hv @ hv)))
+        huv, u0, v0, nu, nv, norm_u, norm_v = _uv_histograms(
+            pts, wts, self._alpha, p.max_translation, p.xy_bin, tw)
+        self._huv, self._uv0, self._nuv = huv, np.array([u0, v0]), np.array([nu, nv])
+        self._offsets = np.array([tw, nu + 3 * tw])  # where bin 0 of u and of v sit in huv
+        self._huv_norm = (norm_u, norm_v)
         self._ref_ready = True
 
     def refine(self, xy: np.ndarray) -> Match | None:
@@ -398,6 +388,44 @@ class Localiser:
         kf.update(z, R=r)
         kf.x[2] = wrap(float(kf.x[2]))
         return None
+
+
+@kernel
+def _uv_histograms(
+    pts: np.ndarray, wts: np.ndarray, alpha: float, pad: float, xy_bin: float, tw: int
+) -> tuple[np.ndarray, float, float, int, int, float, float]:
+    """The reference's translation histograms (:meth:`Localiser.correct`): its points ``pts``
+    (K, 2, ASR frame) rotated by ``-alpha`` (rad) to (u, v), binned every ``xy_bin`` m from
+    ``pad`` m below their least u and v, each weighted on each axis by :func:`_axis_weight` of its
+    surface angle ``wts`` (rad). Returns u's and v's histograms side by side, each padded by the
+    search window ``tw`` (bins), then a zero window where scan points beyond the reference fall
+    (``huv``: tw zeros, u's ``nu`` bins, 2 tw zeros, v's ``nv`` bins, 2 tw + 1 zeros); the u and v
+    of bin 0 (m); nu, nv; the two histograms' norms. Compiled (:mod:`mapper.jit`)."""
+    c, s = math.cos(alpha), math.sin(alpha)
+    n = pts.shape[0]
+    u, v = np.empty(n), np.empty(n)
+    u_lo = v_lo = np.inf
+    u_hi = v_hi = -np.inf
+    for i in range(n):
+        u[i] = pts[i, 0] * c + pts[i, 1] * s
+        v[i] = pts[i, 0] * -s + pts[i, 1] * c
+        u_lo, u_hi = min(u_lo, u[i]), max(u_hi, u[i])
+        v_lo, v_hi = min(v_lo, v[i]), max(v_hi, v[i])
+    u0, v0 = u_lo - pad, v_lo - pad
+    nu = math.floor((u_hi + pad - u0) / xy_bin) + 1
+    nv = math.floor((v_hi + pad - v0) / xy_bin) + 1
+    off_v = nu + 3 * tw
+    huv = np.zeros(off_v + nv + 2 * tw + 1)
+    for i in range(n):
+        wu, wv = _axis_weight(wts[i], alpha)
+        huv[tw + math.floor((u[i] - u0) / xy_bin)] += wu
+        huv[off_v + math.floor((v[i] - v0) / xy_bin)] += wv
+    norm_u = norm_v = 0.0
+    for b in range(tw, tw + nu):
+        norm_u += huv[b] * huv[b]
+    for b in range(off_v, off_v + nv):
+        norm_v += huv[b] * huv[b]
+    return huv, u0, v0, nu, nv, math.sqrt(norm_u), math.sqrt(norm_v)
 
 
 @kernel
@@ -524,28 +552,40 @@ def _icp_step(
     return n, rot, tx, ty, nx, ny, nth
 
 
+@kernel
 def _densify(r: np.ndarray, w: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
     """Points (N, 2) and surface angles (N,) of a reference scan (points ``r`` in sweep order and
     their surface angles ``w``, NaN off surfaces), with points added every ``spacing`` metres between
     consecutive points less than ``_DENSE_GAP`` apart (one surface) at that chord's angle: first the
-    scan's own points, then the added ones.
+    scan's own points, then the added ones. Compiled (:mod:`mapper.jit`).
 
     A scan's points sample a wall every few centimetres, at other places than the reference's: the
     nearest reference *point* then pulls a point along the wall towards it, and ICP between the two
     samplings drifts (0.2° a viewpoint on a synthetic turn in place). Densified, the nearest point is
     about the nearest point on the wall."""
-    if len(r) < 2:
-        return r, w
-    d = r[1:] - r[:-1]
-    n = np.hypot(d[:, 0], d[:, 1])
-    k = np.where(n < _DENSE_GAP, np.ceil(n / spacing).astype(int) - 1, 0).clip(min=0)  # added per chord
-    total = int(k.sum())
-    if total == 0:
-        return r, w
-    idx = np.repeat(np.arange(len(d)), k)
-    frac = (np.arange(total) - np.repeat(np.cumsum(k) - k, k) + 1) / np.repeat(k + 1, k)
-    return (np.concatenate([r, r[idx] + frac[:, None] * d[idx]]),
-            np.concatenate([w, np.arctan2(d[idx, 1], d[idx, 0])]))
+    n = r.shape[0]
+    added = np.zeros(max(n - 1, 0), dtype=np.int64)  # per chord
+    for i in range(n - 1):
+        d = math.hypot(r[i + 1, 0] - r[i, 0], r[i + 1, 1] - r[i, 1])
+        if d < _DENSE_GAP:
+            added[i] = max(math.ceil(d / spacing) - 1, 0)
+    total = n + added.sum()
+    pts = np.empty((total, 2))
+    ang = np.empty(total)
+    pts[:n] = r
+    ang[:n] = w
+    at = n
+    for i in range(n - 1):
+        k = added[i]
+        if k:
+            dx, dy = r[i + 1, 0] - r[i, 0], r[i + 1, 1] - r[i, 1]
+            a = math.atan2(dy, dx)
+            for j in range(1, k + 1):
+                f = j / (k + 1)
+                pts[at, 0], pts[at, 1] = r[i, 0] + f * dx, r[i, 1] + f * dy
+                ang[at] = a
+                at += 1
+    return pts, ang
 
 
 def _norm_peak(peak: float, norm_a: float, norm_b: float) -> float:
