@@ -170,3 +170,18 @@ def test_a_simulation_is_followed_live_by_asrmap_monitor_in_another_process(tmp_
     assert "simbot  alive" in lines and "simbot  gone" in lines, mon_out[-2000:] + mon_err[-2000:]
     assert any(line.startswith("simbot  asr_created") for line in lines)
     assert any(line.startswith("simbot  status ") for line in lines)
+
+
+def test_a_run_that_ends_with_the_robot_wedged_says_so():
+    from service.evaluate import Track
+    from service.sim.physics import Contact
+    from service.sim.simulator import _wedged
+
+    # moving for 100 s, then 70 s jammed within 5 cm against something
+    t = list(np.arange(0.0, 170.0, 1.0))
+    poses = [(0.05 * min(s, 100.0) + 0.001 * (s % 2), 1.0, 0.0) for s in t]
+    touching = [Contact(150.0, poses[150], poses[150])]
+    assert _wedged(Track(t, poses), touching, 169.0) == pytest.approx((5.001, 1.0), abs=1e-9)
+    assert _wedged(Track(t, poses), [], 169.0) is None  # standing still, touching nothing: not wedged
+    assert _wedged(Track(t, poses), touching, 110.0) is None  # still moving within the window
+    assert _wedged(Track(t[:10], poses[:10]), touching, 9.0) is None  # shorter than the window

@@ -25,6 +25,7 @@ world's start pose, as P2OS does at power-on. Units: metres, radians, seconds.
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import logging
 import math
@@ -221,6 +222,10 @@ class Summary:
     scans: int = 0
     scans_dropped: int = 0
     false_pairs: tuple = ()
+    #: Where the robot ended wedged (world frame, m), if it did: in its last ``WEDGED_TIME`` s it
+    #: moved less than ``WEDGED_DISTANCE`` and touched something. An exploration that ends so has
+    #: given up its last goals because the robot could not move, not because nothing was left.
+    wedged: tuple[float, float] | None = None
 
     @property
     def realtime_factor(self) -> float:
@@ -240,9 +245,29 @@ class Summary:
             f"regions entered {len(self.regions_visited)}/{regions}"
             + (f" (missed: {', '.join(self.regions_missed)})" if self.regions_missed else ""),
         ]
+        if self.wedged is not None:
+            x, y = self.wedged
+            out.append(f"the robot ended wedged at ({x:.2f}, {y:.2f}) m: it moved less than "
+                       f"{WEDGED_DISTANCE:g} m in its last {WEDGED_TIME:g} s, touching something")
         if self.scans:
             out.append(f"scans mapped {self.scans}, dropped {self.scans_dropped}")
         return out
+
+
+WEDGED_TIME, WEDGED_DISTANCE = 60.0, 0.3  # s, m: see Summary.wedged
+
+
+def _wedged(truth: Track, contacts: list, end: float) -> tuple[float, float] | None:
+    """The robot's last position (world frame) if it ended wedged (see :attr:`Summary.wedged`)."""
+    if not len(truth) or end - truth.t[0] < WEDGED_TIME:
+        return None
+    i = bisect.bisect_left(truth.t, end - WEDGED_TIME)
+    xy = np.array([p[:2] for p in truth.poses[i:]])
+    if not len(xy) or not any(c.t >= end - WEDGED_TIME for c in contacts):
+        return None
+    if float(np.hypot(*(xy - xy[-1]).T).max()) >= WEDGED_DISTANCE:
+        return None
+    return float(xy[-1, 0]), float(xy[-1, 1])
 
 
 def summarise(world: World, doc: dict, robot: SimRobot, odometry: Track, entered_from: dict,
@@ -271,6 +296,7 @@ def summarise(world: World, doc: dict, robot: SimRobot, odometry: Track, entered
         regions_visited=[n for n in names if n in visited],
         regions_missed=[n for n in names if n not in visited],
         false_pairs=pairs,
+        wedged=_wedged(truth, robot.body.contacts, sim_time),
     )
 
 
