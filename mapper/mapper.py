@@ -54,6 +54,7 @@ events (CycleDetected, CycleRejected, MapRealigned). ``document()`` gives the ``
 from __future__ import annotations
 
 import bisect
+import gc
 import math
 import time
 
@@ -149,11 +150,16 @@ _warm = False
 
 
 def _warm_up() -> None:
-    """:func:`mapper.warmup.warm_up`, once per process (the mappers it makes skip it)."""
+    """:func:`mapper.warmup.warm_up`, once per process (the mappers it makes skip it); then every
+    object alive is moved out of the garbage collector's reach (``gc.freeze``): numba's compiler
+    leaves so many long-lived objects that one full collection over them took 75 ms, inside a scan
+    (Intel replay). They live as long as the process anyway."""
     global _warm
     if not _warm:
         _warm = True
         warm_up()
+        gc.collect()
+        gc.freeze()
 
 
 class Mapper:
