@@ -142,15 +142,6 @@ def _axis_weight(angle: float, alpha: float) -> tuple[float, float]:
     return abs(math.sin(rel)), abs(math.cos(rel))
 
 
-@kernel
-def _axis_weights(angle: np.ndarray, alpha: float) -> np.ndarray:
-    """:func:`_axis_weight` of each of the surface angles ``angle`` (K,): columns u and v (K, 2)."""
-    w = np.empty((angle.shape[0], 2))
-    for i in range(angle.shape[0]):
-        w[i, 0], w[i, 1] = _axis_weight(angle[i], alpha)
-    return w
-
-
 def _hist_circular(angles: np.ndarray, nbins: int) -> np.ndarray:
     b = np.floor(angles * (nbins / np.pi)).astype(int) % nbins
     h = np.bincount(b, minlength=nbins).astype(float)
