@@ -47,9 +47,12 @@ _PARALLEL = math.cos(math.radians(20.0))
 _SAMPLES = np.linspace(0.1, 0.9, 5)  # fractions along an exit tested for being covered by surfaces
 
 
-def _pairs_within(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.ndarray, ...]:
+def _pairs_within(
+    p: np.ndarray, seg: np.ndarray, tol: float, u: np.ndarray | None = None
+) -> tuple[np.ndarray, ...]:
     """The (point, segment) pairs closer than ``tol`` (m): point and segment indices and distances
-    (in no particular order).
+    (in no particular order). With the points' unit directions ``u`` (P, 2), only the pairs whose
+    direction is parallel to the segment's to within 20° (``_PARALLEL``).
 
     Candidates are the points inside each segment's bounding box grown by ``tol``: the points sorted
     by x, each box's x-range is two binary searches, and only the pairs in those ranges are tested
@@ -57,15 +60,21 @@ def _pairs_within(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.ndarra
     of an ASR's boundary and label store.
     """
     order = np.argsort(p[:, 0], kind="stable")
-    return _pairs_in_boxes(np.ascontiguousarray(p[order]), order, np.ascontiguousarray(seg, dtype=float), tol)
+    pu, cos_min = (_NO_DIRS, -1.0) if u is None else (np.ascontiguousarray(u[order], dtype=float), _PARALLEL)
+    return _pairs_in_boxes(np.ascontiguousarray(p[order]), order, np.ascontiguousarray(seg, dtype=float), tol,
+                           pu, cos_min)
+
+
+_NO_DIRS = np.zeros((0, 2))
 
 
 @kernel
 def _pairs_in_boxes(
-    ps: np.ndarray, order: np.ndarray, seg: np.ndarray, tol: float
+    ps: np.ndarray, order: np.ndarray, seg: np.ndarray, tol: float, pu: np.ndarray, cos_min: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_pairs_within` over the points ``ps`` sorted by x (``order``: their indices before
-    sorting), segment by segment. Compiled (:mod:`mapper.jit`)."""
+    sorting; ``pu``: their directions, when ``cos_min`` > -1), segment by segment. Compiled
+    (:mod:`mapper.jit`)."""
     xs = ps[:, 0]
     cap = 64
     pi = np.empty(cap, dtype=np.int64)
@@ -80,13 +89,15 @@ def _pairs_in_boxes(
         i1 = np.searchsorted(xs, max(ax, bx) + tol, side="right")
         abx, aby = bx - ax, by - ay
         den = max(abx * abx + aby * aby, 1e-18)
+        norm = max(math.hypot(abx, aby), 1e-12)
+        sx, sy = abx / norm, aby / norm
         for i in range(i0, i1):
             px, py = ps[i, 0], ps[i, 1]
             if py < lo_y or py > hi_y:
                 continue
             t = min(max(((px - ax) * abx + (py - ay) * aby) / den, 0.0), 1.0)
             d = math.hypot(ax + t * abx - px, ay + t * aby - py)
-            if d < tol:
+            if d < tol and (cos_min <= -1.0 or abs(pu[i, 0] * sx + pu[i, 1] * sy) > cos_min):
                 if n == cap:
                     cap *= 2
                     pi, si, dd = _grown(pi, cap), _grown(si, cap), _grown(dd, cap)
@@ -122,11 +133,8 @@ def _along_pairs(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The (edge, segment) index pairs where an edge (midpoint, unit direction) lies along a segment:
     within ``tol`` (m) and parallel to within 20°."""
-    pi, si, _ = _pairs_within(mid, seg, tol)
-    sv = seg[si, 1] - seg[si, 0]
-    sv = sv / np.maximum(np.hypot(sv[:, 0], sv[:, 1]), 1e-12)[:, None]
-    par = np.abs(np.einsum("ij,ij->i", u[pi], sv)) > _PARALLEL
-    return pi[par], si[par]
+    pi, si, _ = _pairs_within(mid, seg, tol, u)
+    return pi, si
 
 
 def _along(mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float) -> np.ndarray:
