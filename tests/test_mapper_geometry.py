@@ -260,3 +260,15 @@ def test_exit_ends_inserted_into_a_ring_pinched_within_rounding_leave_it_valid()
     ends = [a + f * (b - a) + nrm for f in (0.2, 0.4, 0.5, 0.7)]
     builder.exit_segments = np.array([[ends[0], ends[1]], [ends[2], ends[3]]])
     assert shapely.Polygon(builder._ring()).is_valid
+
+
+def test_of_two_equally_short_covers_to_a_shared_corner_the_nearer_surface_in_the_sweep_wins():
+    # Surfaces 1 and 2 meet at the corner C = (2, 0), the closest point of both to the occluding end
+    # P = (0, 0): the cover P-C lands on surface 1's end (t = 1), the nearer across the gap.
+    from mapper.exits import _shortest
+
+    seg = np.array([[[-1.0, 1.0], [-0.5, 0.2]], [[3.0, 1.0], [2.0, 0.0]], [[2.0, 0.0], [3.0, -1.0]]])
+    best, length, q, t = _shortest(seg, np.array([-0.5, -0.5]), np.zeros((1, 2)), np.array([0]),
+                                   np.array([True]), MapperParams().visibility_tolerance)
+    assert best.tolist() == [1] and t.tolist() == [1.0]
+    assert length[0] == pytest.approx(2.0) and q[0].tolist() == [2.0, 0.0]
