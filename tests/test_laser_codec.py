@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from laser import protocol as p
@@ -146,7 +146,12 @@ def test_garbage_flips_and_truncation_never_raise_and_intact_telegrams_survive(c
     stream = b""
     intact = []
     for garbage, victim, how, pos, bit, good in chunks:
-        stream += garbage + _damaged(victim, how, pos, bit) + good
+        damaged = _damaged(victim, how, pos, bit)
+        # A victim cut just before its last CRC byte, when that byte is 0x02, is made whole again by
+        # the next telegram's STX: the stream then holds the victim and a good telegram without its
+        # STX, and no reader can tell (found by hypothesis: 02 80 03 00 a5 02 00 16 | 02 80 ...).
+        assume(not (damaged + good).startswith(victim) or damaged == victim)
+        stream += garbage + damaged + good
         intact.append(good)
     r = FrameReader()
     got = [t.encode() for i in range(0, len(stream), chunk_size) for t in r.feed(stream[i : i + chunk_size])]
