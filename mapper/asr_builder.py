@@ -37,6 +37,7 @@ import numpy as np
 import shapely
 
 from mapper.cycles import centre_of
+from mapper.exits import closest_point
 from mapper.jit import kernel
 from mapper.params import MapperParams
 from mapper.se2 import Pose, transform_points
@@ -88,15 +89,14 @@ def _pairs_in_boxes(
         i0 = np.searchsorted(xs, min(ax, bx) - tol, side="left")
         i1 = np.searchsorted(xs, max(ax, bx) + tol, side="right")
         abx, aby = bx - ax, by - ay
-        den = max(abx * abx + aby * aby, 1e-18)
         norm = max(math.hypot(abx, aby), 1e-12)
         sx, sy = abx / norm, aby / norm
         for i in range(i0, i1):
             px, py = ps[i, 0], ps[i, 1]
             if py < lo_y or py > hi_y:
                 continue
-            t = min(max(((px - ax) * abx + (py - ay) * aby) / den, 0.0), 1.0)
-            d = math.hypot(ax + t * abx - px, ay + t * aby - py)
+            qx, qy, _ = closest_point(px, py, ax, ay, abx, aby)
+            d = math.hypot(qx - px, qy - py)
             if d < tol and (cos_min <= -1.0 or abs(pu[i, 0] * sx + pu[i, 1] * sy) > cos_min):
                 if n == cap:
                     cap *= 2

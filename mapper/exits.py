@@ -91,6 +91,16 @@ def closest_xy(px: np.ndarray, py: np.ndarray, seg: np.ndarray) -> tuple[np.ndar
     return ax + t * abx, ay + t * aby, t
 
 
+@kernel
+def closest_point(
+    px: float, py: float, ax: float, ay: float, abx: float, aby: float
+) -> tuple[float, float, float]:
+    """:func:`closest_xy` for one point (px, py) and one segment from (ax, ay) along (abx, aby), for
+    compiled loops (m, one frame): the closest point's x and y and its fraction t along the segment."""
+    t = min(max(((px - ax) * abx + (py - ay) * aby) / max(abx * abx + aby * aby, 1e-18), 0.0), 1.0)
+    return ax + t * abx, ay + t * aby, t
+
+
 def segment_distance(px: np.ndarray, py: np.ndarray, seg: np.ndarray) -> np.ndarray:
     """Distance (m) from points (px, py) (...) to segments (..., 2, 2), all in one frame."""
     qx, qy, _ = closest_xy(px, py, seg)
@@ -135,10 +145,7 @@ def _shortest(
                 length[j] = np.inf
                 continue
             ax, ay = seg[k, 0, 0], seg[k, 0, 1]
-            abx, aby = seg[k, 1, 0] - ax, seg[k, 1, 1] - ay
-            den = max(abx * abx + aby * aby, 1e-18)
-            t = min(max(((px - ax) * abx + (py - ay) * aby) / den, 0.0), 1.0)
-            qx[j], qy[j], tq[j] = ax + t * abx, ay + t * aby, t
+            qx[j], qy[j], tq[j] = closest_point(px, py, ax, ay, seg[k, 1, 0] - ax, seg[k, 1, 1] - ay)
             length[j] = math.hypot(qx[j] - px, qy[j] - py)
         order = np.argsort(length, kind="mergesort")  # stable: equal lengths nearest first
         for r in range(nc):

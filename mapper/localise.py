@@ -182,8 +182,8 @@ class Localiser:
         self._rot_shifts = np.arange(-w, w + 1)
         self._rot_index = (np.arange(self._nb)[None, :] + self._rot_shifts[:, None]) % self._nb
         self._tw = math.ceil(params.max_translation / params.xy_bin)
-        self._gates = np.geomspace(params.refine_start, params.refine_inlier, params.refine_iterations)
-        self._gates = self._gates.tolist()  # ICP's shrinking correspondence gates (m)
+        self._gates = np.geomspace(  # m: ICP's shrinking correspondence gates
+            params.refine_start, params.refine_inlier, params.refine_iterations).tolist()
         self.reset()
 
     def reset(self, pose: Pose = (0.0, 0.0, 0.0)) -> None:
@@ -280,16 +280,17 @@ class Localiser:
         tree = self._ref_tree
         kf = self.kf
         x, y, th = float(kf.x[0]), float(kf.x[1]), float(kf.x[2])
-        xy = np.ascontiguousarray(xy, dtype=float)
         cur = transform_points((x, y, th), xy)
         for gate in self._gates:
             _, j = tree.query(cur, distance_upper_bound=gate)
-            n, rot, tx, ty, x, y, th = _icp_step(xy, ref, j, cur, x, y, th)
+            n, rot, tx, ty = _rigid_motion(cur, ref, j)
             if n < 20:
                 return Match(self.pose, 0.0, 0.0, 0.0, False, "refine: too few pairs")
+            x, y, th = compose((tx, ty, rot), (x, y, th))
+            cur = transform_points((x, y, th), xy)
             if gate == p.refine_inlier and abs(rot) + abs(tx) + abs(ty) < 1e-5:
                 break
-        d, j = tree.query(cur, distance_upper_bound=p.refine_inlier)  # cur: at (x, y, th)
+        d, j = tree.query(cur, distance_upper_bound=p.refine_inlier)
         ok = d < np.inf
         inliers = float(ok.mean())
         pose = (x, y, wrap(th))
@@ -493,16 +494,12 @@ def _translation_correlation(
 
 
 @kernel
-def _icp_step(
-    xy: np.ndarray, ref: np.ndarray, j: np.ndarray, cur: np.ndarray, x: float, y: float, th: float
-) -> tuple[int, float, float, float, float, float, float]:
-    """One point-to-point ICP step of :meth:`Localiser.refine`. ``xy`` (K, 2): the scan (robot
-    frame); ``cur`` (K, 2): the same points at the pose ``(x, y, th)`` (ASR frame, m, rad);
-    ``j``: each point's nearest reference point in ``ref`` (M, 2, ASR frame), M where none lies
-    within the gate. Returns the number of pairs, the rigid motion of the paired points onto
-    their partners (rot, tx, ty: rad, m, m; the closed form of Arun et al.), and the moved pose
-    ``(tx, ty, rot) ⊕ (x, y, th)``, into which ``cur`` is rewritten. With fewer than 20 pairs,
-    nothing moves. Compiled (:mod:`mapper.jit`): one call instead of about 20 numpy calls."""
+def _rigid_motion(cur: np.ndarray, ref: np.ndarray, j: np.ndarray) -> tuple[int, float, float, float]:
+    """One point-to-point ICP step of :meth:`Localiser.refine`: the rigid motion (rot, tx, ty: rad,
+    m, m; the closed form of Arun et al.) that moves the points ``cur`` (K, 2, ASR frame) onto their
+    nearest reference points ``ref[j]`` (M, 2), over the pairs with ``j`` < M (M: none within the
+    gate), and the number of pairs (with fewer than 20, no motion). Compiled (:mod:`mapper.jit`):
+    one call instead of about 15 numpy calls."""
     m = ref.shape[0]
     n = 0
     sax = say = sbx = sby = 0.0
@@ -515,7 +512,7 @@ def _icp_step(
             sbx += ref[k, 0]
             sby += ref[k, 1]
     if n < 20:
-        return n, 0.0, 0.0, 0.0, x, y, th
+        return n, 0.0, 0.0, 0.0
     max_, may, mbx, mby = sax / n, say / n, sbx / n, sby / n
     h00 = h01 = h10 = h11 = 0.0
     for i in range(j.shape[0]):
@@ -529,18 +526,7 @@ def _icp_step(
             h11 += ay * by
     rot = math.atan2(h01 - h10, h00 + h11)
     c, s = math.cos(rot), math.sin(rot)
-    tx = mbx - (c * max_ - s * may)
-    ty = mby - (s * max_ + c * may)
-    nx, ny = tx + c * x - s * y, ty + s * x + c * y
-    nth = np.fmod(rot + th + math.pi, 2.0 * math.pi)  # wrapped to (-pi, pi] as se2.wrap
-    if nth <= 0.0:
-        nth += 2.0 * math.pi
-    nth -= math.pi
-    cn, sn = math.cos(nth), math.sin(nth)
-    for i in range(xy.shape[0]):
-        cur[i, 0] = nx + cn * xy[i, 0] - sn * xy[i, 1]
-        cur[i, 1] = ny + sn * xy[i, 0] + cn * xy[i, 1]
-    return n, rot, tx, ty, nx, ny, nth
+    return n, rot, mbx - (c * max_ - s * may), mby - (s * max_ + c * may)
 
 
 @kernel

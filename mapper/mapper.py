@@ -169,7 +169,7 @@ class Mapper:
     before the first scan); ``pose``: robot pose in the current ASR frame; ``global_pose``: in the
     global frame; ``timing``: seconds spent per stage on the last scan (for benchmarks).
 
-    The first mapper made in a process compiles the compiled kernels (:mod:`mapper.warmup`): about
+    The first mapper made in a process compiles the mapper's kernels (:mod:`mapper.warmup`): about
     0.3-1.5 s with numba's disk cache, about 10 s the first time on a machine, here rather than
     inside the first scans.
     """
