@@ -45,9 +45,12 @@ def test_without_a_new_command_for_half_a_second_the_robot_is_stopped(robot):
         assert _until(lambda: emu.wheel_speeds[0] > 0.25, 1.0)
         for _ in range(8):  # a fresh source keeps it driving: 0.8 s of commands every 0.1 s
             time.sleep(0.1)
+            # taken before the command: the gate's 0.5 s run from inside it (CI once saw 0.4997 s
+            # from a clock read after it)
+            silent = time.monotonic()
             gate.command(0.3, 0.0, "explore")
+        # the source hangs; the driver's PULSEs keep P2OS's watchdog fed
         assert emu.wheel_speeds[0] > 0.25 and gate.expired == 0
-        silent = time.monotonic()  # the source hangs; the driver's PULSEs keep P2OS's watchdog fed
         assert _until(lambda: gate.expired == 1, 1.0)
         assert 0.5 <= gate.last_stop[0] - silent < 0.6
         assert gate.last_stop[1].startswith("no motion command from explore for 0.5")
