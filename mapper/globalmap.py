@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Container
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,6 +49,7 @@ from mapper.cycles import (
     surface_points,
 )
 from mapper.events import CycleDetected, CycleRejected, Event, MapRealigned
+from mapper.exits import segment_distance
 from mapper.posegraph import Edge, diagonal_info, optimise
 from mapper.se2 import Pose, between, compose, inverse, transform_points
 from mapper.topology import Topology, Transition, child_origin
@@ -188,6 +190,46 @@ class GlobalMap:
     def lookup(self, asr_id: int, exit_id: str):
         """The known transition through ``exit_id`` of ``asr_id`` (re-entry), or None."""
         return self.topology.lookup(asr_id, exit_id)
+
+    def relink(self, asr_id: int, exit_id: str, at: tuple[float, float], radius: float,
+               among: Container[int]) -> Transition | None:
+        """The known transition out of ``asr_id`` that leads through the place crossed now: exit
+        ``exit_id`` has none, but at ``at`` (``asr_id``'s frame, m) lies, within ``radius`` (m), the
+        entrance of an ASR a transition out of ``asr_id`` leads into, through an exit that
+        ``asr_id`` no longer has; only destinations in ``among`` (those the robot can re-enter).
+        Relabelling can drop an exit and give the same doorway a new id
+        (its chord moves by more than identity allows, or it vanishes for a view); without this the
+        robot crossing that doorway again made a new ASR of known space, every time (simulated
+        ``lab``, seed 4: 16 ASRs in 600 s, each entered from one corridor ASR's doorway). The
+        transition is moved onto ``exit_id`` and returned; None when no such entrance lies there.
+
+        The entrance is the destination's exit ``via`` placed in ``asr_id``'s frame by the
+        transition's ``rel``; where the destination no longer has it, the crossing pose of the
+        transition that created the destination (``rel`` itself)."""
+        src = self.asrs.get(asr_id)
+        if src is None:
+            return None
+        live = {e.id for e in src.exits}
+        best, best_d = None, radius
+        for tr in self.topology.out_of(asr_id):
+            dst = self.asrs.get(tr.dst)
+            if tr.exit in live or dst is None or tr.dst not in among:
+                continue
+            via = next((e for e in dst.exits if e.id == tr.via), None)
+            if via is not None:
+                seg = transform_points(tr.rel, np.array([via.a, via.b])).reshape(1, 2, 2)
+                d = float(segment_distance(at[0], at[1], seg)[0])
+            elif self.topology.entered.get(tr.dst) == tr:
+                d = math.hypot(at[0] - tr.rel[0], at[1] - tr.rel[1])
+            else:
+                continue
+            if d < best_d:
+                best, best_d = tr, d
+        if best is None:
+            return None
+        moved = self.topology.rekey(asr_id, best.exit, exit_id)
+        self._set_exit_to(src, exit_id, moved.dst)
+        return moved
 
     # -- the check ------------------------------------------------------------------------------
     def check(self, n: int, t: float) -> list[Event]:

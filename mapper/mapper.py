@@ -630,6 +630,8 @@ class Mapper:
         old = self.current
         self._loc_refs[old] = self.localiser.reference()  # for a re-entry into old
         known = self._gm.lookup(old, e.id)
+        if known is None:  # a doorway crossed before, whose exit relabelling has renamed
+            known = self._gm.relink(old, e.id, at, self.params.passage_width, self._builders)
         if known is not None and known.dst in self._builders:
             return self._reenter(t, known, pose, pts)
         origin = compose(self._asrs[old].origin, pose)

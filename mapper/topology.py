@@ -14,7 +14,7 @@ entered from, method.md §5.5) only for ``from`` -> ``to``.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from mapper.se2 import Pose, compose, inverse
 
@@ -108,10 +108,33 @@ class Topology:
         del self._out[(entry.src, entry.exit)]
         return self.add_link(entry.src, entry.exit, match, match_exit, rel_src_match)
 
+    def rekey(self, src: int, old: str, new: str) -> Transition:
+        """The transition out of ``src`` through exit ``old`` now goes through exit ``new`` (the
+        exit that took ``old``'s place when ``src`` was relabelled): its record, its reverse's
+        ``via``, its links and, if it created its destination, ``entered``. Returns it."""
+        t = self._out.pop((src, old))
+        moved = replace(t, exit=new)
+        self._out[(src, new)] = moved
+        back = self._out.get((t.dst, t.via)) if t.via is not None else None
+        if back is not None and back.dst == src and back.via == old:
+            self._out[(t.dst, t.via)] = replace(back, via=new)
+        for link in self.links:
+            if link.src == src and link.exit == old:
+                link.exit = new
+            elif link.dst == src and link.via == old:
+                link.via = new
+        if self.entered.get(t.dst) == t:
+            self.entered[t.dst] = moved
+        return moved
+
     # -- queries ------------------------------------------------------------------------------
     def lookup(self, asr: int, exit: str) -> Transition | None:
         """Where crossing ``exit`` of ``asr`` leads (re-entry), or None if unexplored."""
         return self._out.get((asr, exit))
+
+    def out_of(self, asr: int) -> list[Transition]:
+        """Every known transition out of ``asr``."""
+        return [t for (a, _), t in self._out.items() if a == asr]
 
     def destinations(self, asr: int) -> dict[str, int]:
         """Exit id -> destination ASR for every known transition out of ``asr``."""

@@ -11,6 +11,7 @@ from mapper.cycles import Alignment, SpatialIndex, align_points
 from mapper.events import CycleDetected, CycleRejected, MapRealigned
 from mapper.globalmap import GlobalMap
 from mapper.se2 import between, transform_points
+from mapper.types import Exit
 from tests.synthetic_asrs import box_asr, drive
 
 PAPER = CycleParams.paper()
@@ -316,3 +317,35 @@ def test_a_verified_alignment_needs_the_centres_only_verify_crosscheck_margin_de
     assert gm._verified(dataclasses.replace(good, correction=(0.15, 0.0, 0.0)), 2, 1) is False  # 0.05 m deep
     # A candidate found only by the search radius had no unaligned crosscheck: crosscheck_margin.
     assert gm._verified(good, 2, 1, near=True) is False
+
+
+def _room_and_next():
+    """ASR 1, a 4 m x 3 m room with an exit on its east side; ASR 2 beyond it, entered through it."""
+    gm = GlobalMap(FULL)
+    room = box_asr(1, (0, 0, 4, 3), (0.0, 0.0, 0.0), "E")
+    gm.add_first(room)
+    beyond = box_asr(2, (4, 0, 8, 3), (4.1, 1.5, 0.0), "W")
+    gm.add_created(beyond, 1, "1/0", "2/0", (4.1, 1.5, 0.0), 1.0)
+    return gm, room
+
+
+def test_a_doorway_whose_exit_was_renamed_leads_where_it_led_before():
+    gm, room = _room_and_next()
+    old = room.exits[0]
+    room.exits = [Exit("1/3", old.a, old.b)]  # a relabelling dropped 1/0; the doorway is 1/3 now
+    assert gm.lookup(1, "1/3") is None
+    tr = gm.relink(1, "1/3", (4.0, 1.2), 0.6, among={1, 2})
+    assert (tr.exit, tr.dst, tr.via) == ("1/3", 2, "2/0")
+    assert gm.lookup(1, "1/3") == tr and gm.lookup(1, "1/0") is None
+    assert room.exits[0].to == 2
+    assert gm.lookup(2, "2/0").via == "1/3"
+    assert [(ln.src, ln.exit, ln.dst, ln.via) for ln in gm.topology.links] == [(1, "1/3", 2, "2/0")]
+
+
+def test_a_new_exit_elsewhere_or_beside_a_live_one_is_not_relinked():
+    gm, room = _room_and_next()
+    assert gm.relink(1, "1/3", (4.0, 1.2), 0.6, among={1}) is None  # 2 cannot be re-entered
+    assert gm.relink(1, "1/3", (4.0, 1.2), 0.6, among={1, 2}) is None  # 1/0 is still there
+    room.exits = [Exit("1/3", (0.0, 2.0), (0.0, 1.0))]  # 1/0 gone, and a doorway on the west side
+    assert gm.relink(1, "1/3", (0.0, 1.5), 0.6, among={1, 2}) is None
+    assert gm.lookup(1, "1/0").dst == 2

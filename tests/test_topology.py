@@ -66,3 +66,16 @@ def test_global_poses_compose_along_transitions():
     assert child_origin((1.0, 1.0, math.pi), (1.0, 0.0, 0.0)) == pytest.approx(
         compose((1, 1, math.pi), (1, 0, 0))
     )
+
+
+def test_rekey_moves_a_transition_its_reverse_and_its_link_onto_the_exit_that_replaced_it():
+    topo = Topology()
+    topo.add_creation(1, "1/0", 2, "2/1", (3.0, 0.5, 0.2))
+    moved = topo.rekey(1, "1/0", "1/4")
+    assert (moved.exit, moved.dst, moved.via) == ("1/4", 2, "2/1")
+    assert topo.lookup(1, "1/0") is None and topo.lookup(1, "1/4") == moved
+    assert topo.lookup(2, "2/1").via == "1/4"  # crossing back names the new exit
+    assert topo.entered[2] == moved
+    assert [ln.to_dict() for ln in topo.links] == [
+        {"from": 1, "exit": "1/4", "to": 2, "via": "2/1", "oneway": False}
+    ]
