@@ -146,6 +146,19 @@ def _along(mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float) -> np.nd
     return out
 
 
+def _covered(seg: np.ndarray, surfaces: np.ndarray, tol: float) -> np.ndarray:
+    """(N,) True where a segment (N, 2, 2) is covered by ``surfaces`` (M, 2, 2): three of five points
+    along it (``_SAMPLES``) lie along one of them (within ``tol``, m, and parallel)."""
+    if len(seg) == 0 or len(surfaces) == 0:
+        return np.zeros(len(seg), dtype=bool)
+    a, ab = seg[:, 0], seg[:, 1] - seg[:, 0]
+    s = ab / np.maximum(np.hypot(ab[:, 0], ab[:, 1]), 1e-12)[:, None]
+    samples = a[:, None, :] + _SAMPLES[None, :, None] * ab[:, None, :]
+    dirs = np.repeat(s, len(_SAMPLES), axis=0)
+    hits = _along(samples.reshape(-1, 2), dirs, surfaces, tol).reshape(len(seg), -1)
+    return hits.sum(axis=1) >= 3
+
+
 def _add_new(stores: list[np.ndarray], segs: list[np.ndarray], tol: float) -> list[np.ndarray]:
     """Each store plus those of its new segments it does not already cover (all (N, 2, 2), m).
 
@@ -349,12 +362,7 @@ class AsrBuilder:
         b = np.array([e.b for e in exits])
         ab = b - a
         s = ab / np.maximum(np.hypot(ab[:, 0], ab[:, 1]), 1e-12)[:, None]
-        explained = np.zeros(len(exits), dtype=bool)
-        if len(seen):
-            samples = a[:, None, :] + _SAMPLES[None, :, None] * ab[:, None, :]
-            dirs = np.repeat(s, len(_SAMPLES), axis=0)
-            hits = _along(samples.reshape(-1, 2), dirs, seen, p.label_tolerance).reshape(len(exits), -1)
-            explained = hits.sum(axis=1) >= 3
+        explained = _covered(np.stack([a, b], axis=1), seen, p.label_tolerance)
         if explained.any() and len(self.exit_segments):
             es = self.exit_segments
             ev = es[:, 1] - es[:, 0]
@@ -427,6 +435,13 @@ class AsrBuilder:
             self.surfaces, self.exit_segments = _add_new(
                 [self.surfaces, self.exit_segments], list(segs), 0.5 * p.label_tolerance
             )
+            # A stored exit covered by a stored surface is a wall that some view saw too sparsely
+            # to fit (far, at a grazing angle), not a way out; kept, it labels that wall an exit
+            # (an edge along both is one), and the exits along both walls of a corridor joined its
+            # doorways into one exit run.
+            self.exit_segments = self.exit_segments[
+                ~_covered(self.exit_segments, self.surfaces, p.label_tolerance)
+            ]
         v = self._ring()
         nxt = np.concatenate([v[1:], v[:1]])
         mid = 0.5 * (v + nxt)

@@ -14,13 +14,14 @@ import pytest
 import shapely
 from raycast import box, cast
 
+from mapper.asr_builder import AsrBuilder
 from mapper.exits import find_covers
 from mapper.lines import extract_surfaces, scan_points
 from mapper.mapper import Mapper
 from mapper.params import MapperParams
 from mapper.se2 import compose, transform_points
 from mapper.types import Odometry, Scan
-from mapper.view import build_view
+from mapper.view import View, build_view
 
 P = MapperParams()
 LASER = (P.laser_x, P.laser_y)
@@ -272,3 +273,43 @@ def test_of_two_equally_short_covers_to_a_shared_corner_the_nearer_surface_in_th
                                    np.array([True]), MapperParams().visibility_tolerance)
     assert best.tolist() == [1] and t.tolist() == [1.0]
     assert length[0] == pytest.approx(2.0) and q[0].tolist() == [2.0, 0.0]
+
+
+def _corridor_view(x0: float, x1: float, wall_exits: tuple[float, float] | None) -> View:
+    """A view (robot at the origin, frame aligned with the corridor, y -0.9..0.9) of the corridor from
+    x0 to x1, its far end an exit across it; ``wall_exits``: from where to where (x) both walls were
+    too sparse to fit and were taken for exits (joined across the end), as far, grazing views are."""
+    south, north = -0.9, 0.9
+    if wall_exits is None:
+        v = [(x0, south), (x1, south), (x1, north), (x0, north)]
+        labels = ["surface", "exit", "surface", "unknown"]
+        surfaces = [((x0, south), (x1, south)), ((x1, north), (x0, north))]
+        exits = [((x1, south), (x1, north))]
+    else:
+        a, b = wall_exits
+        v = [(x0, south), (a, south), (b, south), (b, north), (a, north), (x0, north)]
+        labels = ["surface", "exit", "exit", "exit", "surface", "unknown"]
+        surfaces = [((x0, south), (a, south)), ((a, north), (x0, north))]
+        exits = [((a, south), (b, south)), ((b, south), (b, north)), ((b, north), (a, north))]
+    v = np.array(v, dtype=float)
+    return View(v, labels, shapely.Polygon(v), np.array(surfaces, dtype=float), np.array(exits, dtype=float))
+
+
+def test_an_exit_along_a_wall_a_later_view_sees_is_dropped_and_the_wall_becomes_surface():
+    """A corridor's walls seen far and at a grazing angle are too sparse to fit: the gaps between their
+    returns are exits along the walls, joined across the corridor's end into one run of exit edges.
+    A nearer view sees the walls as surfaces. The stored exits they cover are dropped: kept, they
+    labelled those walls exit (an edge along both is one), and the whole U became one exit whose
+    chord crossed the corridor where the walls were first too sparse, with any doorway in either
+    wall inside it (the simulated office, seed 3: room 5 was never entered)."""
+    b = AsrBuilder(1, 0.0, (0.0, 0.0, 0.0), P)
+    b.add_view(_corridor_view(-0.3, 6.0, wall_exits=(3.0, 6.0)), (0.0, 0.0, 0.0))
+    assert len(b.asr.exits) == 1 and b.asr.exits[0].midpoint[0] == pytest.approx(3.0, abs=0.05)
+    # from 3 m on, the walls are surfaces to the end (and the view adds a strip at the rear)
+    assert b.add_view(_corridor_view(-4.0, 3.0, wall_exits=None), (3.0, 0.0, 0.0))
+    (e,) = b.asr.exits
+    assert e.midpoint == pytest.approx((6.0, 0.0), abs=0.05)  # the corridor's end, not its middle
+    v = b.asr.boundary
+    nxt = np.roll(v, -1, axis=0)
+    along_walls = np.isclose(np.abs(v[:, 1]), 0.9) & np.isclose(v[:, 1], nxt[:, 1])
+    assert set(np.array(b.asr.edges)[along_walls]) == {"surface"}
