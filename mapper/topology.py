@@ -111,13 +111,15 @@ class Topology:
     def rekey(self, src: int, old: str, new: str) -> Transition:
         """The transition out of ``src`` through exit ``old`` now goes through exit ``new`` (the
         exit that took ``old``'s place when ``src`` was relabelled): its record, its reverse's
-        ``via``, its links and, if it created its destination, ``entered``. Returns it."""
+        ``via``, its links and ``entered`` where either created an ASR. Returns it."""
         t = self._out.pop((src, old))
         moved = replace(t, exit=new)
         self._out[(src, new)] = moved
         back = self._out.get((t.dst, t.via)) if t.via is not None else None
         if back is not None and back.dst == src and back.via == old:
             self._out[(t.dst, t.via)] = replace(back, via=new)
+            if self.entered.get(src) == back:  # src was created through that reverse transition
+                self.entered[src] = self._out[(t.dst, t.via)]
         for link in self.links:
             if link.src == src and link.exit == old:
                 link.exit = new

@@ -79,3 +79,19 @@ def test_rekey_moves_a_transition_its_reverse_and_its_link_onto_the_exit_that_re
     assert [ln.to_dict() for ln in topo.links] == [
         {"from": 1, "exit": "1/4", "to": 2, "via": "2/1", "oneway": False}
     ]
+
+
+def test_rekeying_the_way_back_keeps_the_creation_for_closing_a_cycle():
+    """ASR 2, created through 1/0, renames its entrance 2/1 to 2/5 (the way back re-keyed); closing
+    2 onto another ASR later needs its creation transition, which must name the new entrance (a
+    simulated lab run crashed with a KeyError here)."""
+    topo = Topology()
+    topo.add_creation(1, "1/0", 2, "2/1", (3.0, 0.5, 0.2))
+    topo.rekey(2, "2/1", "2/5")
+    assert topo.entered[2] == topo.lookup(1, "1/0") and topo.entered[2].via == "2/5"
+    topo.add_node(7)
+    link = topo.close_onto(2, 7, "7/0", (0.0, 0.0, 0.0))
+    assert link.to_dict() == {"from": 1, "exit": "1/0", "to": 7, "via": "7/0", "oneway": False}
+    assert [ln.to_dict() for ln in topo.links if ln.oneway] == [
+        {"from": 2, "exit": "2/5", "to": 1, "via": "1/0", "oneway": True}
+    ]
