@@ -12,7 +12,8 @@ space), then it is *done*.
 An exit is crossed on its chord's normal, or, when its run of exit edges begins or ends with a wall
 seen at a grazing angle (a corridor's end seen from inside: a U of exit edges), through what is
 left between those arms (:func:`crossing`).
-An exit is explored when it leads somewhere (``to`` is set, or a link starts from it; a link naming
+An exit is explored when it is narrower than ``min_exit_width`` (a slot between furniture, not a
+way on), when it leads somewhere (``to`` is set, or a link starts from it; a link naming
 an exit the ASR no longer has is travelled through the other side's), when crossing it failed, when
 it was seen shut (a surface right behind it in a scan: :meth:`Planner.shut_exits`), when the space
 beyond it is already inside other ASRs (``known_depths``, ``known_cover``: in an open-plan room
@@ -81,6 +82,13 @@ class ExploreParams:
     arrive_tol: float = 0.3
     #: rad. Facing a direction within this counts as facing it.
     face_tol: float = 0.3
+    #: m. Exits narrower than this are not driven through. The mapper keeps gaps from its
+    #: ``passage_width`` (0.6 m) up; the P2DX is 0.425 m wide and sweeps a 0.37 m circle turning,
+    #: so a 0.6-0.7 m gap (a slot between a table and a wall) can be entered only straight on, and
+    #: lining up for one in a corner pinned the robot there (simulated ``aliasing``, seeds 1, 2 and
+    #: 4: room A's or room B's table slot, hundreds of contacts, the last goals given up stuck).
+    #: Doorways (0.9 m) and the passages round furniture are wider.
+    min_exit_width: float = 0.7
     #: m. Exits are approached from this far inside, on the exit's normal, then driven through ...
     stage_distance: float = 0.8
     #: m. ... to this far beyond its midpoint.
@@ -496,7 +504,7 @@ class Planner:
 
     def explored(self, view: MapView, asr: ASR, ex: Exit, edges: dict | None = None) -> bool:
         """Whether exit ``ex`` of ``asr`` needs no visit (see the module docstring)."""
-        if ex.to is not None or self._failed(asr, ex):
+        if ex.to is not None or self._failed(asr, ex) or ex.width < self.p.min_exit_width:
             return True
         edges = _edges(view) if edges is None else edges
         if (asr.id, ex.id) in edges:

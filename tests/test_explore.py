@@ -100,6 +100,16 @@ def test_the_largest_unexplored_exit_goes_first():
     assert Planner().plan(view([a], 1)).exit == "1/1"
 
 
+def test_a_slot_narrower_than_the_robot_can_line_up_for_is_not_an_exit_to_take():
+    """A 0.65 m gap (between a table and a wall) passes the mapper's 0.6 m passage width, but the
+    P2DX can enter it only straight on: lining up for one in a corner pinned the robot there."""
+    slot = door(1, 0, (6, 1), (6, 1.65))
+    a = room(1, 0, 0, 6, 4, edges=EAST_EXIT, exits=[slot])
+    assert Planner().plan(view([a], 1)).kind == "done"
+    wide = door(1, 0, (6, 1), (6, 1.0 + P.min_exit_width))
+    assert Planner().plan(view([room(1, 0, 0, 6, 4, edges=EAST_EXIT, exits=[wide])], 1)).exit == "1/0"
+
+
 def test_an_exit_named_by_a_link_is_explored():
     a = room(1, 0, 0, 6, 4, edges=EAST_EXIT, exits=[door(1, 0, (6, 1), (6, 3))])
     b = room(2, 0, 0, 3, 3, exits=[door(2, 0, (0, 1), (0, 2))])
