@@ -117,9 +117,10 @@ class Topology:
         self._out[(src, new)] = moved
         back = self._out.get((t.dst, t.via)) if t.via is not None else None
         if back is not None and back.dst == src and back.via == old:
-            self._out[(t.dst, t.via)] = replace(back, via=new)
+            renamed = replace(back, via=new)
+            self._out[(t.dst, t.via)] = renamed
             if self.entered.get(src) == back:  # src was created through that reverse transition
-                self.entered[src] = self._out[(t.dst, t.via)]
+                self.entered[src] = renamed
         for link in self.links:
             if link.src == src and link.exit == old:
                 link.exit = new
@@ -140,7 +141,7 @@ class Topology:
 
     def destinations(self, asr: int) -> dict[str, int]:
         """Exit id -> destination ASR for every known transition out of ``asr``."""
-        return {e: t.dst for (a, e), t in self._out.items() if a == asr}
+        return {t.exit: t.dst for t in self.out_of(asr)}
 
     def neighbours(self, asr: int) -> set[int]:
         """ASRs one edge away (any direction, duplicates included)."""
