@@ -121,6 +121,15 @@ class CycleParams:
     6 m piece: 0.14) is enough. The corner or room next to a straight piece closes the cycle
     instead. 0: no requirement (verification as before)."""
 
+    topological_anchor: bool = True
+    """Beyond the paper (needs ``verify``): a match ``verify_constrained`` would refuse (a straight
+    corridor piece) is accepted when the topology anchors it: the ASR the robot entered the new one
+    from was already closed onto (is the same place as) a neighbour of the candidate. Along a
+    corridor the alignment cannot say where the two pieces lie, but the place the robot came from
+    was matched next to the candidate, so the cycle continues there: one closure at a corridor's
+    corner carries on piece by piece. Not for ``search_radius`` candidates. Off: such pieces stay
+    unclosed."""
+
     verify_near_min_inliers: float = 0.5
     """Fraction of inliers (as ``verify_min_inliers``) required of a candidate found only by
     ``search_radius``: with no crosscheck behind it, half its surfaces must agree. On MIT CSAIL a

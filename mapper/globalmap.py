@@ -275,6 +275,8 @@ class GlobalMap:
                 continue
             align = found or (self._align(n, m) if (p.verify or p.realign) else None)
             if p.verify and not self._verified(align, n, m, near=rule == "aligned-crosscheck"):
+                if rule != "aligned-crosscheck":
+                    self._rejected.setdefault((n, m), t)  # hindsight may anchor it later
                 events += self._decide(t, n, m, c, cm, overlap, "verification", False)
                 continue
             done = True
@@ -373,8 +375,22 @@ class GlobalMap:
             and a.shift <= p.verify_max_correction
             and abs(a.correction[2]) <= p.verify_max_rotation
             and a.violation <= p.verify_max_violation
-            and a.constraint >= p.verify_constrained
+            and (a.constraint >= p.verify_constrained or (not near and self._anchored(n, m)))
         )
+
+    def _anchored(self, n: int, m: int) -> bool:
+        """Whether the topology already places n beside m (``topological_anchor``): a neighbour of n
+        is, by an accepted cycle, the same place as a neighbour of m (two different ASRs, one the
+        duplicate of the other). A straight corridor piece's surfaces cannot say where along it n
+        lies; the closure next to it can: n and m lie beside one place."""
+        if not self.params.topological_anchor:
+            return False
+        top = self.topology
+        mine = top.within(n, 1) - {n, m}
+        if self._came_from.get(n) is not None:
+            mine.add(self._came_from[n])
+        theirs = top.within(m, 1) - {m, n}
+        return any(q != a and top.canonical(q) == top.canonical(a) for a in mine for q in theirs)
 
     def _close(self, t, n, m, c, cm, overlap, reason, align: Alignment | None) -> list[Event]:
         p = self.params
@@ -447,7 +463,9 @@ class GlobalMap:
         return match.exits[int(np.argmin(np.hypot(*(mids - ref).T)))]
 
     def _hindsight(self, t: float, n: int, m: int, correction: Pose) -> list[Event]:
-        """§7: re-examine earlier crosscheck rejections (a, b) with a near n and b near m topologically.
+        """§7: re-examine earlier rejections (a, b) with a near n and b near m topologically: those of
+        the crosscheck (the paper's case) and, beyond it, those of verification (with n -> m accepted
+        a straight piece beside them is now anchored, ``topological_anchor``).
 
         The accepted match n -> m says how far the map had drifted there: ``correction`` (global
         frame) moves n onto m (identity without a surface alignment). Applied to a, with both ASRs

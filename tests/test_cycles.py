@@ -32,17 +32,20 @@ def accepted(events):
     return [(e.asr, e.matches, e.reason) for e in events if isinstance(e, CycleDetected)]
 
 
-@pytest.mark.parametrize("params", [PAPER, FULL], ids=["paper", "extended"])
+@pytest.mark.parametrize("params", [PAPER, FULL, FULL.replace(topological_anchor=False)],
+                         ids=["paper", "extended", "extended-unanchored"])
 def test_corridor_loop_revisit_is_detected_with_no_false_cycle(params):
     gm = GlobalMap(params)
     events = drive(gm, LOOP, per_step=(0.15, -0.1, 0.02))
-    if params.verify_constrained > 0 and params.verify:
+    if params.verify_constrained > 0 and params.verify and not params.topological_anchor:
         # ASR 2 is a straight piece (walls east and west only): the alignment cannot say where
-        # along it 6 lies, so extended mode leaves it to the corners (verify_constrained).
+        # along it 6 lies, so without the topological anchor extended mode leaves it unclosed.
         assert accepted(events) == [(5, 1, "centre-crosscheck")]
         assert any(isinstance(e, CycleRejected) and (e.asr, e.matches, e.reason) == (6, 2, "verification")
                    for e in events)
     else:
+        # Extended mode: 6 was entered from 5, which closed onto 1, a neighbour of 2; so 6 is the
+        # piece beside 1 (topological_anchor), which its walls alone cannot say.
         assert accepted(events) == [(5, 1, "centre-crosscheck"), (6, 2, "centre-crosscheck")]
         assert gm.asrs[6].duplicate_of == 2
     assert gm.asrs[5].duplicate_of == 1
@@ -349,3 +352,18 @@ def test_a_new_exit_elsewhere_or_beside_a_live_one_is_not_relinked():
     room.exits = [Exit("1/3", (0.0, 2.0), (0.0, 1.0))]  # 1/0 gone, and a doorway on the west side
     assert gm.relink(1, "1/3", (0.0, 1.5), 0.6, among={1, 2}) is None
     assert gm.lookup(1, "1/0").dst == 2
+
+
+def test_a_straight_piece_revisited_before_the_corner_is_closed_in_hindsight_by_the_topology():
+    # Round the block from the west side: the west piece is met again (5 onto 1) before the corner
+    # (6 onto 2). 5's walls all run north-south, so its match waits; once 6 closes onto the corner,
+    # 5 lies beside the same place as 1 does, and hindsight accepts it (topological_anchor).
+    route = [LOOP[3], LOOP[0], LOOP[1], LOOP[2], LOOP[3], LOOP[0]]
+    events = drive(GlobalMap(FULL), route, per_step=(0.15, -0.1, 0.02))
+    got = accepted(events)
+    assert (6, 2, "centre-crosscheck") in got and (5, 1, "hindsight") in got, got
+    rejected = [(e.asr, e.matches, e.reason) for e in events if isinstance(e, CycleRejected)]
+    assert (5, 1, "verification") in rejected
+    # Without the anchor the straight piece stays unclosed.
+    events = drive(GlobalMap(FULL.replace(topological_anchor=False)), route, per_step=(0.15, -0.1, 0.02))
+    assert accepted(events) == [(6, 2, "centre-crosscheck")]
