@@ -123,12 +123,13 @@ class CycleParams:
 
     topological_anchor: bool = True
     """Beyond the paper (needs ``verify``): a match ``verify_constrained`` would refuse (a straight
-    corridor piece) is accepted when the topology anchors it: the ASR the robot entered the new one
-    from was already closed onto (is the same place as) a neighbour of the candidate. Along a
-    corridor the alignment cannot say where the two pieces lie, but the place the robot came from
-    was matched next to the candidate, so the cycle continues there: one closure at a corridor's
-    corner carries on piece by piece. Not for ``search_radius`` candidates. Off: such pieces stay
-    unclosed."""
+    corridor piece) is accepted when the topology anchors it: a neighbour of the new ASR (the one
+    the robot came from, say) is, by an accepted cycle, the same place as a different neighbour of
+    the candidate. Along a corridor the alignment cannot say where the two pieces lie; the closure
+    beside them can. Tested at the check and in hindsight (a piece met before its corner is closed
+    when the corner closes). Not for ``search_radius`` candidates. In the simulated worlds (22 runs)
+    missed revisits 85 of 245 -> 78 of 249 with no false closure; Intel corrected one more true
+    closure. Off: such pieces stay unclosed."""
 
     verify_near_min_inliers: float = 0.5
     """Fraction of inliers (as ``verify_min_inliers``) required of a candidate found only by
