@@ -385,11 +385,8 @@ class GlobalMap:
         lies; the closure next to it can: n and m lie beside one place."""
         if not self.params.topological_anchor:
             return False
-        top = self.topology
-        mine = top.within(n, 1) - {n, m}
-        if self._came_from.get(n) is not None:
-            mine.add(self._came_from[n])
-        theirs = top.within(m, 1) - {m, n}
+        top = self.topology  # the ASR n was entered from is one of its neighbours
+        mine, theirs = top.within(n, 1) - {n, m}, top.within(m, 1) - {m, n}
         return any(q != a and top.canonical(q) == top.canonical(a) for a in mine for q in theirs)
 
     def _close(self, t, n, m, c, cm, overlap, reason, align: Alignment | None) -> list[Event]:
