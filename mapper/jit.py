@@ -22,10 +22,16 @@ from collections.abc import Callable
 import numba
 
 
-def kernel(fn: Callable) -> Callable:
+def kernel(fn: Callable | None = None, *, inline: bool = False) -> Callable:
     """``fn`` compiled in nopython mode (no Python objects inside; numba's default float
-    semantics, no fast-math), cached on disk where a cache directory can be written."""
+    semantics, no fast-math), cached on disk where a cache directory can be written. With
+    ``inline`` (``@kernel(inline=True)``), other kernels take its body in place of a call: for a
+    small kernel called in an inner loop with arrays, whose every call would otherwise count
+    references to each array passed."""
+    if fn is None:
+        return lambda f: kernel(f, inline=inline)
+    opts = {"inline": "always"} if inline else {}
     try:
-        return numba.njit(cache=True)(fn)
+        return numba.njit(cache=True, **opts)(fn)
     except RuntimeError:  # numba: "cannot cache function ...: no locator available"
-        return numba.njit(cache=False)(fn)
+        return numba.njit(cache=False, **opts)(fn)
