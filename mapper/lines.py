@@ -71,20 +71,41 @@ def scan_points(scan: Scan, p: MapperParams) -> ScanPoints:
     """Valid returns of ``scan`` as robot-frame points (m); see :class:`ScanPoints`."""
     r = np.asarray(scan.ranges, dtype=float)
     c, s = _trig(len(r), float(scan.angle_min), float(scan.angle_increment), p.laser_theta)
-    finite = np.isfinite(r)
-    no_return = ~finite | (r >= scan.max_range)
-    valid = ~no_return & (r > p.min_range)
-    beam = np.flatnonzero(valid)
-    rv = r[beam]
-    xy = np.empty((len(beam), 2))
-    xy[:, 0] = p.laser_x + rv * c[beam]
-    xy[:, 1] = p.laser_y + rv * s[beam]
-    cum = np.cumsum(no_return)
-    gap = np.zeros(len(beam), dtype=bool)
-    if len(beam) > 1:
-        # a no-return reading strictly between two consecutive valid beams
-        gap[1:] = (cum[beam[1:] - 1] - cum[beam[:-1]]) > 0
+    xy, beam, rv, gap = _points(r, c, s, float(scan.max_range), p.min_range, p.laser_x, p.laser_y)
     return ScanPoints(xy, beam, rv, (p.laser_x, p.laser_y), gap, float(scan.angle_increment))
+
+
+@kernel
+def _points(r: np.ndarray, c: np.ndarray, s: np.ndarray, max_range: float, min_range: float,
+            lx: float, ly: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`scan_points`' arrays from the ranges ``r`` (m) and each beam's cos and sin (robot
+    frame): a valid return is finite, below ``max_range`` and above ``min_range``; a no-return is
+    not finite or at least ``max_range`` (m); ``gap`` marks a no-return strictly between two
+    consecutive valid beams. Compiled (:mod:`mapper.jit`): one pass instead of about 15 numpy
+    calls."""
+    n = r.shape[0]
+    beam = np.empty(n, np.int64)
+    k = 0
+    gap = np.zeros(n, np.bool_)
+    missing = False  # a no-return since the last valid beam
+    for i in range(n):
+        v = r[i]
+        if not math.isfinite(v) or v >= max_range:
+            missing = True
+        elif v > min_range:
+            gap[k] = missing and k > 0
+            beam[k] = i
+            k += 1
+            missing = False
+    beam = beam[:k].copy()
+    xy = np.empty((k, 2))
+    rv = np.empty(k)
+    for j in range(k):
+        b = beam[j]
+        rv[j] = r[b]
+        xy[j, 0] = lx + r[b] * c[b]
+        xy[j, 1] = ly + r[b] * s[b]
+    return xy, beam, rv, gap[:k].copy()
 
 
 def _breaks(pts: ScanPoints, p: MapperParams) -> np.ndarray:

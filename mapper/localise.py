@@ -324,33 +324,19 @@ class Localiser:
         p = self.p
         kf = self.kf
         x, y, th = float(kf.x[0]), float(kf.x[1]), wrap(float(kf.x[2]))
-        dirs, ang = _chords(xy, p.direction_max_gap)
-        if len(dirs) < 10:
+        n_dirs, s, q_th, ang = _rotation_match(xy, p.direction_max_gap, th, self._hr_shifted, self._hr_norm)
+        if n_dirs < 10:
             return None
-        c, hc_norm = _rotation_correlation(dirs, th, self._hr_shifted)
-        s, _, top = _peak(c)
-        q_th = _norm_peak(top, hc_norm, self._hr_norm)
-        th_m = wrap(th + (s - (len(c) - 1) / 2.0) * p.angle_bin)
+        th_m = wrap(th + s * p.angle_bin)
         if q_th < p.min_quality:
             return Match((x, y, th_m), q_th, 0.0, 0.0, False, "rotation quality")
-        tw = self._tw
         # scan points at (x, y, th_m) in the reference's main axes (u, v), correlated with its histograms
-        cu, cv, norm_u, norm_v, info_u, info_v = _translation_correlation(
-            xy, ang, x, y, th_m, self._alpha, self._uv0, self._nuv, self._offsets, self._huv, tw,
-            1.0 / p.xy_bin)
-        su, iu, top_u = _peak(cu)
-        sv, iv, top_v = _peak(cv)
-        shifts = np.array([(su - tw) * p.xy_bin, (sv - tw) * p.xy_bin])
-        # An axis few surfaces face (the along-corridor one) counts only as much as they are there.
-        info_u, info_v = info_u / (len(xy) * p.axis_info_full), info_v / (len(xy) * p.axis_info_full)
-        qs = (
-            _norm_peak(top_u, norm_u, self._huv_norm[0])
-            * _prominence(cu, iu, p.prominence_bins, p.prominence_full)
-            * min(max(info_u, 0.0), 1.0),
-            _norm_peak(top_v, norm_v, self._huv_norm[1])
-            * _prominence(cv, iv, p.prominence_bins, p.prominence_full)
-            * min(max(info_v, 0.0), 1.0),
-        )
+        su, sv, q_u, q_v = _translation_match(
+            xy, ang, x, y, th_m, self._alpha, self._uv0, self._nuv, self._offsets, self._huv, self._tw,
+            1.0 / p.xy_bin, self._huv_norm[0], self._huv_norm[1], p.axis_info_full, p.prominence_bins,
+            p.prominence_full)
+        shifts = np.array([su * p.xy_bin, sv * p.xy_bin])
+        qs = (q_u, q_v)
         ra = _rot(self._alpha)
         corr = ra @ shifts
         var_uv = [(p.match_sigma_xy / q) ** 2 if q >= p.min_quality else _NOT_MEASURED for q in qs]
@@ -526,6 +512,7 @@ def _densify(r: np.ndarray, w: np.ndarray, spacing: float) -> tuple[np.ndarray, 
     return pts, ang
 
 
+@kernel
 def _norm_peak(peak: float, norm_a: float, norm_b: float) -> float:
     """Normalised correlation peak (cosine similarity of the best-aligned histograms), 0..1."""
     den = norm_a * norm_b
@@ -546,6 +533,47 @@ def _prominence(c: np.ndarray, i: int, bins: int, full: float) -> float:
     lo, hi = c[: max(i - bins + 1, 0)], c[i + bins :]
     rest = max(lo.max() if len(lo) else 0.0, hi.max() if len(hi) else 0.0)
     return min(max((1.0 - rest / peak) / full, 0.0), 1.0)
+
+
+@kernel
+def _rotation_match(
+    xy: np.ndarray, max_gap: float, th: float, hr_shifted: np.ndarray, hr_norm: float
+) -> tuple[int, float, float, np.ndarray]:
+    """Step 1 of :meth:`Localiser.correct` in one compiled call: the scan's :func:`_chords`
+    (points ``xy`` (K, 2), robot frame), their :func:`_rotation_correlation` at the predicted
+    heading ``th`` (rad) and its :func:`_peak`. Returns (the number of chord directions; the
+    peak's shift from ``th`` in bins, parabola-refined; its quality q_theta, 0..1; the points'
+    surface angles, rad, robot frame)."""
+    dirs, ang = _chords(xy, max_gap)
+    if dirs.shape[0] < 10:
+        return dirs.shape[0], 0.0, 0.0, ang
+    c, hc_norm = _rotation_correlation(dirs, th, hr_shifted)
+    s, _, top = _peak(c)
+    return dirs.shape[0], s - (c.shape[0] - 1) / 2.0, _norm_peak(top, hc_norm, hr_norm), ang
+
+
+@kernel
+def _translation_match(
+    xy: np.ndarray, ang: np.ndarray, x: float, y: float, th: float, alpha: float, uv0: np.ndarray,
+    nuv: np.ndarray, offsets: np.ndarray, huv: np.ndarray, tw: int, inv_bin: float,
+    ref_norm_u: float, ref_norm_v: float, info_full: float, prom_bins: int, prom_full: float,
+) -> tuple[float, float, float, float]:
+    """Step 2 of :meth:`Localiser.correct` in one compiled call: the
+    :func:`_translation_correlation` of the scan at (x, y, th) (ASR frame), the :func:`_peak` of
+    each axis and its quality: normalised peak times :func:`_prominence` times how much the
+    scan's surfaces face that axis (an axis few surfaces face, the along-corridor one, counts only
+    as much as they are there). Returns (the u and v shifts in bins, parabola-refined; q_u, q_v,
+    0..1)."""
+    cu, cv, norm_u, norm_v, info_u, info_v = _translation_correlation(
+        xy, ang, x, y, th, alpha, uv0, nuv, offsets, huv, tw, inv_bin)
+    su, iu, top_u = _peak(cu)
+    sv, iv, top_v = _peak(cv)
+    full = xy.shape[0] * info_full
+    q_u = (_norm_peak(top_u, norm_u, ref_norm_u) * _prominence(cu, iu, prom_bins, prom_full)
+           * min(max(info_u / full, 0.0), 1.0))
+    q_v = (_norm_peak(top_v, norm_v, ref_norm_v) * _prominence(cv, iv, prom_bins, prom_full)
+           * min(max(info_v / full, 0.0), 1.0))
+    return su - tw, sv - tw, q_u, q_v
 
 
 def _mahalanobis2(y: np.ndarray, s: np.ndarray) -> float:

@@ -69,7 +69,8 @@ def run(args=None) -> dict:
         s = np.asarray(v) * 1e3
         out[f"{k}_median_ms"] = float(np.median(s))
         out[f"{k}_p99_ms"] = float(np.percentile(s, 99))
-        print(f"  stage {k:9s} ({len(s):4d} scans): {_stats(s)}")
+        out[f"{k}_total_s"] = float(s.sum() / 1e3)
+        print(f"  stage {k:9s} ({len(s):4d} scans): {_stats(s)}  total {s.sum() / 1e3:.2f} s")
     # The core alone (the mapper-core issue's scope: no cycle check, so no surface alignment)
     core = dataclasses.replace(params, cycles=dataclasses.replace(params.cycles, enabled=False))
     mc, alone, _, _ = _replay(items, core, defer_views=True)
