@@ -5,11 +5,15 @@ the calls' overhead (about 1-5 µs each), not the arithmetic, sets their cost. A
 numba does the same arithmetic in one call. Only loops whose numpy form is mostly overhead are
 compiled; each kernel's docstring says what it replaces.
 
-Compiled code is cached on disk (numba's ``cache=True``): next to the module in ``__pycache__``
-when that is writable, else in numba's per-user cache, or wherever ``NUMBA_CACHE_DIR`` points
-(the systemd unit sets it to the service's cache directory). A kernel compiles on its first call
-in a process without a cache (about a second each). Where no cache directory can be written at
-all, the kernels still compile, only not to disk.
+Compiled code is cached on disk (numba's ``cache=True``) under ``NUMBA_CACHE_DIR`` (the systemd
+unit sets it to the service's cache directory), else ``$XDG_CACHE_HOME/asrmap/numba`` (by default
+``~/.cache/asrmap/numba``), in a subdirectory named by a hash of this package's sources
+(:func:`cache_dir`). numba checks a cached kernel only against its own source file, so a kernel
+that calls another module's kernel kept running the old callee after only the callee's module
+changed (seen: ``asr_builder._pairs_in_boxes`` with an edited ``exits.closest_point``); one cache per
+version of the sources cannot. Caches of other versions unused for a week are removed. A kernel
+compiles on its first call in a process without a cache (about a second each). Where no cache
+directory can be written at all, the kernels still compile, only not to disk.
 
 numba compiles to machine code at run time, so the process needs memory it can make executable:
 the systemd unit cannot set ``MemoryDenyWriteExecute=yes``.
@@ -17,9 +21,48 @@ the systemd unit cannot set ``MemoryDenyWriteExecute=yes``.
 
 from __future__ import annotations
 
+import hashlib
+import os
+import shutil
+import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numba
+
+_KEEP_OTHERS = 7 * 86400.0  # s: how long an unused cache of other sources is kept
+
+
+def cache_dir(package: Path | None = None) -> Path:
+    """Where the kernels of these sources are cached: ``NUMBA_CACHE_DIR`` (or
+    ``$XDG_CACHE_HOME/asrmap/numba``, ``~/.cache/asrmap/numba``) / the first 16 hex digits of a
+    SHA-256 over the ``.py`` files (names and contents) of ``package`` (default: this one's)."""
+    here = package or Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for f in sorted(here.glob("*.py")):
+        h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
+    base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "asrmap", "numba")
+    return Path(base) / h.hexdigest()[:16]
+
+
+def _use_cache_dir() -> None:
+    """Point numba at :func:`cache_dir` and drop other versions' caches unused for a week; any
+    failure (an unwritable directory) leaves numba to find a place itself, or none."""
+    try:
+        d = cache_dir()
+        d.mkdir(parents=True, exist_ok=True)
+        os.utime(d)  # in use: keep
+        numba.config.CACHE_DIR = str(d)
+        now = time.time()
+        for other in d.parent.iterdir():
+            if other != d and other.is_dir() and now - other.stat().st_mtime > _KEEP_OTHERS:
+                shutil.rmtree(other, ignore_errors=True)
+    except OSError:
+        pass
+
+
+_use_cache_dir()
 
 
 def kernel(fn: Callable | None = None, *, inline: bool = False) -> Callable:

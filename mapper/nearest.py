@@ -1,9 +1,11 @@
-"""Nearest-neighbour queries over 2-D points (metres, any one frame): a kd-tree for ICP.
+"""Nearest-neighbour queries over 2-D points (metres, any one frame): a kd-tree for the cycle
+check's surface alignment (:func:`mapper.cycles.align_points`, which needs the 4 nearest).
 
 :func:`point_tree` builds pykdtree's kd-tree. Against scipy's ``cKDTree`` (what the mapper used before)
 it returns the same neighbours and is faster at the mapper's sizes: on the 939 viewpoint
-refinements of the Intel raw log (about 2,100 reference points, 178 scan points) a query takes
-34 µs instead of 73 µs and a build 0.18 ms instead of 0.50 ms (one thread each).
+refinements of the Intel raw log (about 2,100 reference points, 178 scan points) a query took
+34 µs instead of 73 µs and a build 0.18 ms instead of 0.50 ms (one thread each). The viewpoint
+refinement has since moved to :mod:`mapper.icp`, whose compiled loop cannot call the kd-tree.
 
 pykdtree runs queries in OpenMP threads. For a query this small that gains nothing, and OpenMP's
 idle threads then spin on the other core after every query (measured: process CPU time twice the

@@ -1,0 +1,41 @@
+"""mapper.jit: one kernel cache per version of the mapper's sources (numba alone checks a cached
+kernel only against its own file, so a kernel calling another module's kernel went stale)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numba
+
+import mapper
+from mapper.jit import cache_dir
+
+PACKAGE = Path(mapper.__file__).resolve().parent
+
+
+def test_the_cache_follows_every_source_file(tmp_path, monkeypatch):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    copy = tmp_path / "mapper"
+    copy.mkdir()
+    for f in PACKAGE.glob("*.py"):
+        shutil.copy(f, copy / f.name)
+    same = cache_dir(copy)
+    assert same == cache_dir(PACKAGE)
+    assert same.parent == tmp_path / "cache"
+    # a change in a callee's module alone (exits.py holds closest_point, which asr_builder's
+    # compiled pair search calls) moves every kernel to a new cache
+    (copy / "exits.py").write_text((copy / "exits.py").read_text() + "\n# changed\n")
+    assert cache_dir(copy) != same
+    assert cache_dir(copy).parent == same.parent
+
+
+def test_without_numba_cache_dir_the_user_cache_is_used(tmp_path, monkeypatch):
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert cache_dir().parent == tmp_path / "asrmap" / "numba"
+
+
+def test_numba_was_pointed_at_this_versions_cache():
+    assert Path(numba.config.CACHE_DIR) == cache_dir()
+    assert cache_dir().is_dir()
