@@ -60,7 +60,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
+from filterpy.kalman import KalmanFilter, update
 
 from mapper.icp import PointGrid, icp
 from mapper.jit import kernel
@@ -360,7 +360,9 @@ class Localiser:
         d2 = _mahalanobis2(innov, kf.P + r)
         if d2 > self.p.gate_chi2:
             return d2
-        kf.update(z, R=r)
+        # filterpy's functional update: the class method's arithmetic (with H = I the products
+        # associate exactly), without its bookkeeping copies (40 -> 25 µs an update in the replay)
+        kf.x, kf.P = update(kf.x, kf.P, z, r, kf.H)
         kf.x[2] = wrap(float(kf.x[2]))
         return None
 
