@@ -237,11 +237,12 @@ def test_a_view_from_a_doorway_is_not_unioned_so_the_room_beyond_stays_out_of_th
 @pytest.mark.xfail(strict=True, reason="known fault: a doorway beside the path is taken as the entrance")
 @pytest.mark.parametrize("y0", [4.98, 5.00])
 def test_a_doorway_beside_the_path_is_not_taken_as_the_way_back(y0):
-    """Known fault, left open (see README, "Simulation"): a corridor ASR created a metre before the
-    side doorway takes the doorway as its entrance (the nearest exit within two passage widths of
-    where it was entered that does not face ahead), so walking through the doorway re-enters the
-    ASR before it. Requiring the entrance to run along the exit crossed fixes this case, but in
-    the simulated worlds it rejected true entrances, and three of nine runs ended early."""
+    """Known fault, left open (README, "Simulation", "Known faults left open"): a corridor ASR
+    created a metre before the side doorway takes the doorway as its entrance (the nearest exit
+    within two passage widths of where it was entered that does not face ahead), so walking
+    through the doorway re-enters the ASR before it. Requiring the entrance to run along the exit
+    crossed fixes this case, but in the simulated worlds it rejected true entrances, and three of
+    nine runs ended early."""
     m, _, _ = _side_doorway_run(y0)
     assert m.current == max(m.asrs)
 
