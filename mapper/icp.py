@@ -50,8 +50,9 @@ def _grid_slot(ix: int, iy: int, mask: int) -> int:
 
 @kernel
 def _grid_build(points: np.ndarray, cell: float):
-    """(points grouped by cell (M, 2), their original indices, and per hash slot: cell x, cell y,
-    first and one-past-last grouped point; an empty slot has last = 0), the table's mask. Two
+    """(points grouped by cell (M', 2), their original indices, and per hash slot: cell x, cell y,
+    first and one-past-last grouped point (an empty slot has last = 0), the table's mask, and the
+    cells' bounding box (x0, y0, x1, y1; empty: x0 > x1)). Points not finite are left out. Two
     passes over the points, no sort."""
     m = points.shape[0]
     inv = 1.0 / cell
@@ -63,10 +64,20 @@ def _grid_build(points: np.ndarray, cell: float):
     ty = np.zeros(size, np.int64)
     t0 = np.zeros(size, np.int64)
     t1 = np.zeros(size, np.int64)
-    slot = np.empty(m, np.int64)
+    slot = np.full(m, -1, np.int64)
+    box = np.array([1, 1, 0, 0], np.int64)
+    n = 0
     for i in range(m):  # find or make each point's cell; t1 counts its points for now
+        if not (math.isfinite(points[i, 0]) and math.isfinite(points[i, 1])):
+            continue
         ix = math.floor(points[i, 0] * inv)
         iy = math.floor(points[i, 1] * inv)
+        if n == 0:
+            box[0], box[1], box[2], box[3] = ix, iy, ix, iy
+        else:
+            box[0], box[1] = min(box[0], ix), min(box[1], iy)
+            box[2], box[3] = max(box[2], ix), max(box[3], iy)
+        n += 1
         h = _grid_slot(ix, iy, mask)
         while t1[h] != 0 and (tx[h] != ix or ty[h] != iy):
             h = (h + 1) & mask
@@ -76,30 +87,35 @@ def _grid_build(points: np.ndarray, cell: float):
         slot[i] = h
     start = 0
     for h in range(size):  # each cell's run of points
-        n = t1[h]
-        if n:
+        c = t1[h]
+        if c:
             t0[h] = start
             t1[h] = start
-            start += n
-    grouped = np.empty((m, 2))
-    order = np.empty(m, np.int64)
+            start += c
+    grouped = np.empty((n, 2))
+    order = np.empty(n, np.int64)
     for i in range(m):
         h = slot[i]
+        if h < 0:
+            continue
         k = t1[h]
         t1[h] = k + 1
         grouped[k, 0] = points[i, 0]
         grouped[k, 1] = points[i, 1]
         order[k] = i
-    return grouped, order, tx, ty, t0, t1, mask
+    return grouped, order, tx, ty, t0, t1, mask, box
 
 
 @kernel(inline=True)
 def grid_nearest(qx: float, qy: float, bound: float, cell: float, grid) -> tuple[int, float]:
     """The nearest grid point to (qx, qy) (m) closer than ``bound`` (m): (its original index,
     squared distance m²), or (-1, bound²) when none is. ``grid``: :attr:`PointGrid.arrays`. Exact:
-    the point a kd-tree finds (up to ties). Inlined into the calling kernel (see
-    :func:`mapper.jit.kernel`): 0.21 instead of 0.34 ms for an ICP of 13 steps, 168 points."""
-    pts, order, tx, ty, t0, t1, mask = grid
+    the point a kd-tree finds (up to ties). The query must be finite (:func:`icp` checks); the
+    rings searched stop at the bound or once they hold every occupied cell. Inlined into the
+    calling kernel (see :func:`mapper.jit.kernel`): 0.21 instead of 0.34 ms for an ICP of 13
+    steps, 168 points. (Checks for a query not finite inside it cost 40 % more a query: they stay
+    with the caller.)"""
+    pts, order, tx, ty, t0, t1, mask, box = grid
     inv = 1.0 / cell
     fx, fy = qx * inv, qy * inv
     cx, cy = math.floor(fx), math.floor(fy)
@@ -108,7 +124,8 @@ def grid_nearest(qx: float, qy: float, bound: float, cell: float, grid) -> tuple
     edge = min(fx - cx, cx + 1 - fx, fy - cy, cy + 1 - fy) * cell
     best = bound * bound
     bi = -1
-    r = 0
+    # rings nearer than the box of occupied cells are empty: start at the first that reaches it
+    r = max(0, box[0] - cx, cx - box[2], box[1] - cy, cy - box[3])
     while True:
         if r > 0:
             lb = edge + (r - 1) * cell
@@ -137,6 +154,8 @@ def grid_nearest(qx: float, qy: float, bound: float, cell: float, grid) -> tuple
                                 bi = k
                         break
                     h = (h + 1) & mask
+        if cx - r <= box[0] and cy - r <= box[1] and cx + r >= box[2] and cy + r >= box[3]:
+            break  # every occupied cell has been searched (an infinite bound)
         r += 1
     if bi < 0:
         return -1, best
@@ -198,11 +217,18 @@ def icp(xy: np.ndarray, ref: np.ndarray, x: float, y: float, th: float, gates: n
     (``grid``: the arrays of a :class:`~mapper.nearest.PointGrid` over ``ref``, cells of ``cell``
     m), and the :func:`rigid_motion` of the pairs is composed onto the pose. Returns (pairs at the
     last step, fewer than 20 stopping early; x, y, th; the points at that pose (K, 2); each
-    point's nearest reference point within ``inlier`` m, -1 for none)."""
+    point's nearest reference point within ``inlier`` m, -1 for none). No reference, or a pose or
+    a point not finite, gives 0 pairs and no motion."""
     k = xy.shape[0]
     m = ref.shape[0]
     cur = np.empty((k, 2))
-    j = np.empty(k, np.int64)
+    j = np.full(k, -1, np.int64)
+    finite = m > 0 and math.isfinite(x) and math.isfinite(y) and math.isfinite(th)
+    for i in range(k):
+        finite = finite and math.isfinite(xy[i, 0]) and math.isfinite(xy[i, 1])
+    if not finite:  # no reference, or a pose or point not finite (the grid needs finite queries)
+        cur[:] = np.nan
+        return 0, x, y, th, cur, j
     c, s = math.cos(th), math.sin(th)
     for i in range(k):
         cur[i, 0] = x + c * xy[i, 0] - s * xy[i, 1]

@@ -81,3 +81,35 @@ def test_icp_recovers_a_small_motion_and_reports_its_inliers():
     # far from the reference (10 m off), nothing pairs: fewer than 20 pairs, no motion made up
     n, x, y, th, _, _ = icp(xy, ref, 10.4, 9.8, 0.05, gates, 0.08, grid.cell, grid.arrays)
     assert n < 20 and (x, y, th) == (10.4, 9.8, 0.05)
+
+
+def test_points_not_finite_are_left_out_of_the_grid_and_bad_poses_pair_with_nothing():
+    ref = _walls()
+    holey = ref.copy()
+    holey[::7] = np.nan
+    holey[3, 1] = np.inf
+    grid = PointGrid(holey, 0.15)
+    q = ref[::5] + np.array([0.0037, 0.0061])  # off the ties between points 2 cm apart
+    got = _nearest_all(q, 0.3, 0.15, grid.arrays)
+    assert np.all(np.isfinite(holey[got[got >= 0]]))  # never a point that was not finite
+    _, want = point_tree(np.nan_to_num(holey, nan=1e6, posinf=1e6)).query(q, distance_upper_bound=0.3)
+    assert np.array_equal(got, np.where(want == len(holey), -1, want.astype(np.int64)))
+    gates = np.geomspace(0.30, 0.08, 12)
+    xy = ref[::3] - np.array([0.4, -0.2])
+    for pose in [(math.nan, 0.0, 0.0), (0.0, math.inf, 0.0), (0.0, 0.0, math.nan)]:
+        n, *_, j = icp(xy, ref, *pose, gates, 0.08, 0.15, PointGrid(ref, 0.15).arrays)
+        assert n == 0 and np.all(j == -1)
+    bad = xy.copy()
+    bad[10] = (math.nan, 1.0)
+    assert icp(bad, ref, 0.4, -0.2, 0.0, gates, 0.08, 0.15, PointGrid(ref, 0.15).arrays)[0] == 0
+    empty = PointGrid(np.empty((0, 2)), 0.15)
+    assert icp(xy, np.empty((0, 2)), 0.4, -0.2, 0.0, gates, 0.08, 0.15, empty.arrays)[0] == 0
+
+
+def test_an_infinite_bound_finds_the_nearest_point_however_far():
+    ref = _walls()
+    grid = PointGrid(ref, 0.15)
+    q = np.array([[500.0, -300.0], [-2e4, 7.0], [0.5, 0.5]])
+    got = _nearest_all(q, math.inf, 0.15, grid.arrays)
+    _, want = point_tree(ref).query(q)
+    assert list(got) == list(want.astype(np.int64))
