@@ -9,7 +9,7 @@ from pathlib import Path
 import numba
 
 import mapper
-from mapper.jit import cache_dir
+from mapper.jit import cache_dir, prune_caches
 
 PACKAGE = Path(mapper.__file__).resolve().parent
 
@@ -22,7 +22,7 @@ def test_the_cache_follows_every_source_file(tmp_path, monkeypatch):
         shutil.copy(f, copy / f.name)
     same = cache_dir(copy)
     assert same == cache_dir(PACKAGE)
-    assert same.parent == tmp_path / "cache"
+    assert same.parent == tmp_path / "cache" and same.name.startswith("asrmap-")
     # a change in a callee's module alone (exits.py holds closest_point, which asr_builder's
     # compiled pair search calls) moves every kernel to a new cache
     (copy / "exits.py").write_text((copy / "exits.py").read_text() + "\n# changed\n")
@@ -39,3 +39,21 @@ def test_without_numba_cache_dir_the_user_cache_is_used(tmp_path, monkeypatch):
 def test_numba_was_pointed_at_this_versions_cache():
     assert Path(numba.config.CACHE_DIR) == cache_dir()
     assert cache_dir().is_dir()
+
+
+def test_only_old_asrmap_caches_are_removed_from_a_shared_cache_directory(tmp_path):
+    import os
+    import time
+
+    keep = tmp_path / "asrmap-0123456789abcdef"
+    old = tmp_path / "asrmap-fedcba9876543210"
+    recent = tmp_path / "asrmap-00000000000000aa"
+    foreign = tmp_path / "someone-elses-cache"
+    for d in (keep, old, recent, foreign):
+        d.mkdir()
+        (d / "f").write_text("x")
+    week_ago = time.time() - 8 * 86400
+    for d in (keep, old, foreign):
+        os.utime(d, (week_ago, week_ago))
+    assert prune_caches(keep) == [old]
+    assert keep.is_dir() and recent.is_dir() and foreign.is_dir() and not old.exists()
