@@ -13,9 +13,10 @@ file, so a kernel that calls another module's kernel kept running the old callee
 callee's module changed (seen: ``asr_builder._pairs_in_boxes`` with an edited
 ``exits.closest_point``); one cache per version of the sources cannot. Caches of other versions
 (directories named ``asrmap-*`` beside this one; nothing else in a shared ``NUMBA_CACHE_DIR``)
-unused for a week are removed. A kernel compiles on its first call in a process without a cache
-(about a second each). Where no cache directory can be written at all, the kernels still compile,
-only not to disk.
+unused for a week are removed. The price: an edit of any mapper module compiles every kernel again
+once (about 13 s), not only that module's. A kernel compiles on its first call in a process without
+a cache (about a second each). Where no cache directory can be written at all, the kernels still
+compile, only not to disk.
 
 numba compiles to machine code at run time, so the process needs memory it can make executable:
 the systemd unit cannot set ``MemoryDenyWriteExecute=yes``.
