@@ -187,7 +187,7 @@ class Localiser:
         self._rot_index = (np.arange(self._nb)[None, :] + self._rot_shifts[:, None]) % self._nb
         self._tw = math.ceil(params.max_translation / params.xy_bin)
         self._gates = np.geomspace(  # m: ICP's shrinking correspondence gates
-            params.refine_start, params.refine_inlier, params.refine_iterations).tolist()
+            params.refine_start, params.refine_inlier, params.refine_iterations)
         self.reset()
 
     def reset(self, pose: Pose = (0.0, 0.0, 0.0)) -> None:
