@@ -80,7 +80,7 @@ _ICP_CELL = 0.15
 # What _build_reference makes (never changed in place): kept and restored as a whole.
 _REFERENCE = (
     "_refs", "_ref_ready", "_hr", "_hr_shifted", "_hr_norm", "_alpha", "_uv0", "_huv", "_offsets",
-    "_nuv", "_huv_norm", "_ref_points", "_ref_angles", "_ref_tree",
+    "_nuv", "_huv_norm", "_ref_points", "_ref_angles", "_ref_grid",
 )
 
 
@@ -256,7 +256,7 @@ class Localiser:
         # for refine(): the reference scans densified along their surfaces, and the tree on demand
         self._ref_points = np.concatenate([r[3] for r in self._refs])
         self._ref_angles = np.concatenate([r[4] for r in self._refs])
-        self._ref_tree = None
+        self._ref_grid = None
         self._hr = _hist_circular(dirs, self._nb)
         self._hr_shifted = self._hr[self._rot_index]  # (shifts, bins): the rotation correlation is one matvec
         self._hr_norm = float(np.sqrt(self._hr @ self._hr))
@@ -279,9 +279,9 @@ class Localiser:
         if not p.refine or not self._ref_ready or len(xy) < 20:
             return None
         ref = self._ref_points
-        if self._ref_tree is None:
-            self._ref_tree = PointGrid(ref, _ICP_CELL)
-        grid = self._ref_tree
+        if self._ref_grid is None:
+            self._ref_grid = PointGrid(ref, _ICP_CELL)
+        grid = self._ref_grid
         kf = self.kf
         n, x, y, th, cur, j = icp(np.ascontiguousarray(xy, dtype=float), ref, float(kf.x[0]),
                                    float(kf.x[1]), float(kf.x[2]), self._gates, p.refine_inlier,
