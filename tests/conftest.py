@@ -1,4 +1,4 @@
-"""Shared fixtures: real pty pairs and the shared recorded logs."""
+"""Shared fixtures: real pty pairs, the shared recorded logs, and the mapper's kernels compiled."""
 
 from __future__ import annotations
 
@@ -19,3 +19,16 @@ def pty_pair():
 def shared_data():
     """The folder of the shared real logs (../shared/data)."""
     return data_dir()
+
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _kernels_compiled():
+    """The mapper's kernels compiled into the disk cache before any test runs. A child service
+    (``asrmap run`` on ptys) compiles them in its warm-up before its first status and READY=1; on
+    a cold cache (a fresh machine, or the first run after any mapper source changed, see
+    ``mapper.jit``) that is 13-18 s, past the waits of the tests that start one. Warm, this costs
+    about a second."""
+    from mapper.mapper import Mapper
+
+    Mapper()  # the first Mapper of a process runs the warm-up (mapper.warmup)
