@@ -70,6 +70,14 @@ class CycleParams:
     the crosscheck passes with the alignment applied (reason ``aligned-crosscheck``). Recovers
     revisits whose centre drift pushed just outside the earlier ASR. 0: the paper's candidates only."""
 
+    align_failed_crosscheck: bool = True
+    """Beyond the paper (needs ``verify``): a candidate containing the current centre whose own centre
+    fails the crosscheck is aligned by its surfaces as a ``search_radius`` candidate is, and held to
+    the same rules (the crosscheck with the alignment applied, ``verify_min_constraint``,
+    ``verify_near_min_inliers``; reason ``aligned-crosscheck``). It lies nearer than such a
+    candidate: drift of a metre or two (Intel raw: 1.6-2.1 m) fails the crosscheck of revisits
+    whose surfaces say where they are. Off: every such candidate is rejected, as in the paper."""
+
     hindsight: bool = True
     """§7: when ASR k matches j, accept earlier crosscheck-rejected pairs (a, b) where a is a
     topological neighbour of k and b of j (the paper's ASR6/ASR7 case, in hindsight)."""
@@ -187,6 +195,7 @@ class CycleParams:
             exclude_hops=1,
             crosscheck_margin=0.0,
             search_radius=0.0,
+            align_failed_crosscheck=False,
         )
 
     def replace(self, **changes) -> CycleParams:

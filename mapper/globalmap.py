@@ -263,6 +263,12 @@ class GlobalMap:
                     survivors.append((overlap, m, cm, "aligned-crosscheck", align))
                 continue
             if not _mutual(poly, c, pm, cm, p.crosscheck_margin):
+                # Beyond the paper: drift can fail the crosscheck of a true revisit; aligned by its
+                # surfaces, it is held to the near candidates' rules (``align_failed_crosscheck``).
+                align = self._align_near(n, m, poly, cm) if p.align_failed_crosscheck else None
+                if align is not None:
+                    survivors.append((overlap, m, cm, "aligned-crosscheck", align))
+                    continue
                 self._rejected.setdefault((n, m), t)
                 events += self._decide(t, n, m, c, cm, overlap, "centre-crosscheck", False)
             else:

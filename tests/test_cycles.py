@@ -103,12 +103,21 @@ WEST = (-0.15, 0.0, 0.0)
 
 
 def test_a_misaligned_overlap_fails_the_crosscheck_and_is_accepted_in_hindsight():
-    gm = GlobalMap(FULL)
+    gm = GlobalMap(FULL.replace(align_failed_crosscheck=False))
     events = drive(gm, HINDSIGHT, per_step=WEST)
     rejected = [(e.asr, e.matches, e.reason) for e in events if isinstance(e, CycleRejected)]
     assert (6, 1, "centre-crosscheck") in rejected
     assert accepted(events) == [(7, 2, "centre-crosscheck"), (6, 1, "hindsight")]
     assert gm.asrs[6].duplicate_of == 1
+
+
+def test_a_revisit_whose_crosscheck_drift_fails_is_accepted_once_aligned_by_its_surfaces():
+    gm = GlobalMap(FULL)
+    events = drive(gm, HINDSIGHT, per_step=WEST)
+    # five crossings of 0.15 m drift west: the room's walls say where the revisit lies
+    assert accepted(events) == [(6, 1, "aligned-crosscheck"), (7, 2, "centre-crosscheck")]
+    assert [e for e in events if isinstance(e, CycleRejected)] == []
+    assert gm.alignments[(6, 1)].correction == pytest.approx((0.75, 0.0, 0.0), abs=0.02)
 
 
 def test_the_paper_method_alone_leaves_the_misaligned_overlap_rejected():
@@ -242,6 +251,18 @@ def test_a_straight_corridor_aliased_by_drift_along_it_is_not_closed_in_extended
     assert accepted(events) == []
     assert [(e.asr, e.matches, e.reason) for e in events if isinstance(e, CycleRejected)] == [
         (3, 1, "verification")
+    ]
+    assert gm.alignments[(3, 1)].constraint < 0.01
+
+
+def test_a_straight_corridor_piece_failing_the_crosscheck_is_not_aligned_onto_it():
+    # 6 m of drift along the corridor a piece: the third piece's centre lies in the first, the
+    # first's not in the third by the margin; along the walls no alignment can say more.
+    gm = GlobalMap(FULL)
+    events = drive(gm, STRAIGHT, per_step=(-6.0, 0.0, 0.0))
+    assert accepted(events) == []
+    assert [(e.asr, e.matches, e.reason) for e in events if isinstance(e, CycleRejected)] == [
+        (3, 1, "centre-crosscheck")
     ]
     assert gm.alignments[(3, 1)].constraint < 0.01
 
