@@ -28,7 +28,7 @@ import numpy as np
 from laser import protocol as p
 from laser.sources import RangeSource, constant
 from laser.telegram import ACK, NAK, REPLY_BIT, FrameReader, Telegram, reply
-from laser.timing import mirror_period, scan_period
+from laser.timing import b0_size, mirror_period, scan_period, sweep_time, transmit_time
 from laser.values import encode_b0, make_scan, scan_angles
 from serialport.device import DeviceThread
 from serialport.ptys import line_speed
@@ -179,8 +179,13 @@ class LMS2xxEmulator(DeviceThread):
         return scan_period(self.count, res, self.baud) if self.rate_limit else mirror_period(res)
 
     def _scan_telegram(self, now: float) -> bytes:
+        """The 0xB0 telegram written at host time ``now`` (s). A real LMS sends a scan once its sweep
+        is done, and its last byte arrives a transmission time later; this one arrives at once (a
+        pty), so its sweep began ``sweep_time + transmit_time`` before ``now``: the range source is
+        asked for that instant, the first ray's, as the reader dates it (:mod:`laser.timing`)."""
+        swept = now - sweep_time(self.fov, self.resolution) - transmit_time(b0_size(self.count), self.baud)
         metres = np.asarray(
-            self.ranges(now, scan_angles(self.count, self.fov, self.resolution)), dtype=np.float64
+            self.ranges(swept, scan_angles(self.count, self.fov, self.resolution)), dtype=np.float64
         )
         scan = make_scan(
             metres,

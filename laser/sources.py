@@ -1,6 +1,7 @@
 """Range sources for the emulator: callables ``ranges(t, angles) -> metres``.
 
-``t`` is the emulator's ``time.monotonic()`` seconds at the scan, ``angles`` the beam angles in
+``t`` is the emulator's ``time.monotonic()`` seconds at the scan's first ray (the instant the reader
+dates it: the telegram's arrival minus its sweep and transmission times), ``angles`` the beam angles in
 radians in the sensor frame (counter-clockwise, 0 = straight ahead). A source returns one range per
 angle in metres; NaN or inf means "no return". Anything with that signature plugs in: a fixed
 scan, a log player, a simulator's ray caster.

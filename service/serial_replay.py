@@ -197,6 +197,11 @@ class PlaybackClock:
 # --- speed limits ---------------------------------------------------------------------------------------
 
 LASER_BAUD = 500000  # the fastest LMS2xx line (RS-422): what lets the replay run fastest
+#: The fastest P2OS host line (HOSTBAUD 4). A SIP reaches the host one transfer time after it was
+#: sampled: 32 ms at 9600 baud, after the 500 kbaud scan of that instant (its first ray 14 ms
+#: before), so the service would extrapolate every scan's odometry (over 0.2-0.3 s of recorded
+#: time at 8x). At 115200 a SIP takes 2.7 ms, and the SIPs around each scan are in.
+PIONEER_BAUD = 115200
 
 
 def line_speed_limit(rec: Recording, baud: int = LASER_BAUD) -> float:
@@ -290,7 +295,7 @@ def _config(pioneer_port: str, laser_port: str, state_dir: str, rec: Recording, 
     return dataclasses.replace(
         cfg,
         robot=dataclasses.replace(cfg.robot, name=robot),
-        pioneer=dataclasses.replace(cfg.pioneer, port=pioneer_port),
+        pioneer=dataclasses.replace(cfg.pioneer, port=pioneer_port, baudrate=PIONEER_BAUD),
         laser=dataclasses.replace(cfg.laser, port=laser_port, baudrate=laser_baud, fov=rec.fov_deg,
                                   resolution=rec.resolution_deg, units=rec.units()),
         zenoh=dataclasses.replace(cfg.zenoh, listen=zenoh_listen),

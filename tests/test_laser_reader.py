@@ -111,6 +111,22 @@ def test_timestamp_is_the_first_ray_last_byte_minus_transmission_and_sweep(pty_p
         assert all(b > a for a, b in itertools.pairwise([scan.t, *stamps]))
 
 
+@pytest.mark.parametrize("baud", [38400, 500000])
+def test_the_emulator_samples_its_source_at_the_instant_the_reader_dates_the_scan(pty_pair, baud):
+    asked = []
+
+    def source(t, angles):
+        asked.append(t)
+        return np.full(len(angles), 2.0)
+
+    with _emulator(pty_pair, baud=baud, ranges=source), LMS2xx(pty_pair.path, timeouts=FAST) as lms:
+        scans = _scans(lms, 5)
+    # The telegram is written at once; its sweep began its sweep and transmission times before.
+    for scan in scans:
+        nearest = min(asked, key=lambda t: abs(t - scan.t))
+        assert abs(scan.t - nearest) < 0.005
+
+
 def test_iterator_and_callback_both_deliver_scans(pty_pair):
     got = []
     with _emulator(pty_pair, baud=38400), LMS2xx(pty_pair.path, timeouts=FAST) as lms:

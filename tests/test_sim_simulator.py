@@ -44,8 +44,12 @@ def test_world_devices_answer_the_drivers_with_the_world():
         scan = lms.read(timeout=5.0)
         assert scan is not None
         ranges, angles = np.asarray(scan.ranges), np.asarray(scan.angles)
-        # Straight ahead: the corridor's end wall, 13.5 m away, is beyond the 8.191 m range.
-        assert ranges[np.argmin(np.abs(angles))] == pytest.approx(8.191, abs=0.01)
+        # Straight ahead: the corridor's end wall, 13.5 m away, is beyond the simulated 8.191 m
+        # reach: no return, not a wall at 8.191 m (the reader's mode 5 reaches 32 m, where 8.191
+        # m would be a real reading; the empty beams of every scan once read as one).
+        ahead = int(np.argmin(np.abs(angles)))
+        assert scan.no_return[ahead] and ranges[ahead] == pytest.approx(scan.max_range)
+        assert not np.any(np.isclose(ranges, 8.191, atol=0.005) & ~scan.no_return)
         # To the right (-90 deg): the corridor's south wall 0.9 m away, less the laser's 8 mm offset.
         assert ranges[0] == pytest.approx(0.9 + 0.008, abs=0.05)
         with Pioneer(dev.pioneer_path) as robot:

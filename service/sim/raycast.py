@@ -164,9 +164,16 @@ class RayCaster:
 
     def source(self, robot_pose: Callable[[float], Pose]) -> Callable[[float, np.ndarray], np.ndarray]:
         """A range source ``ranges(t, angles) -> metres`` for :class:`laser.emulator.LMS2xxEmulator`:
-        ``robot_pose(t)`` gives the true robot pose (world frame) at the emulator's time ``t``."""
+        ``robot_pose(t)`` gives the true robot pose (world frame) at the emulator's time ``t``.
+
+        A beam that meets nothing within ``max_range`` is ``inf`` (no return), which the emulator
+        sends as the no-return code of the measuring mode the host configured. Sent as
+        ``max_range`` itself it would be a real reading in any mode reaching further (the drivers
+        set mode 5, 32 m): a phantom wall ``max_range`` away on every empty beam."""
 
         def ranges(t: float, angles: np.ndarray) -> np.ndarray:
-            return self.scan(robot_pose(t), angles)
+            r = self.scan(robot_pose(t), angles)
+            r[r >= self.max_range] = np.inf
+            return r
 
         return ranges

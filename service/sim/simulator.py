@@ -431,8 +431,7 @@ class WorldDevices:
             def _period(self) -> float:  # the world's scan rate, scaled with the world's clock
                 return scan_period / speed
 
-        def ranges(t_wall: float, angles: np.ndarray) -> np.ndarray:
-            return robot.ranges(self.to_sim(t_wall), angles)
+        ranges = robot.caster.source(lambda t_wall: robot.true_pose_at(self.to_sim(t_wall)))
 
         st = self._stack
         pio_pty, las_pty = st.enter_context(open_pty()), st.enter_context(open_pty())
@@ -501,7 +500,7 @@ class StackSim:
         cfg = replace(
             cfg,
             robot=replace(cfg.robot, name=self.robot_name),
-            pioneer=replace(cfg.pioneer, port=pioneer_port),
+            pioneer=replace(cfg.pioneer, port=pioneer_port, baudrate=self._pioneer_baud()),
             laser=replace(cfg.laser, port=laser_port, baudrate=self._laser_baud(),
                           resolution=self.p.resolution),
             store=replace(cfg.store, state_dir=self.state_dir),
@@ -511,10 +510,18 @@ class StackSim:
         return cfg
 
     def _laser_baud(self) -> int:
-        # The reader dates a scan by its arrival minus the telegram's transmission time at the line's
-        # baud; a pty delivers at once, so at a high speed factor the 97 ms of 38400 baud would put
-        # every scan a world-second early. 500 kbaud makes that error 7 ms of wall time.
+        # The line's times are the device's, in wall seconds, while the world runs ``speed`` times
+        # faster: a scan arrives its sweep and transmission after its first ray (the emulator samples
+        # the world then, as the reader dates it), 104 ms at 38400 baud, a simulated second at 10x.
+        # 500 kbaud makes it 14 ms of wall time.
         return 38400 if self.speed <= 1.0 else 500000
+
+    def _pioneer_baud(self) -> int:
+        # The same for the SIPs: one reaches the host 32 ms (wall) after it was sampled at 9600 baud,
+        # after the scan of that instant has arrived at 500 kbaud, so the service would extrapolate
+        # every scan's odometry over 0.2-0.3 simulated seconds (the lab world's frames then came
+        # out 0.2-0.9 m off where the stepped simulation's are 0.1 m). At 115200 a SIP takes 2.7 ms.
+        return 9600 if self.speed <= 1.0 else 115200
 
     def _open_laser(self, cfg):
         from service.pipeline import open_laser
