@@ -74,7 +74,7 @@ class CycleParams:
     """Beyond the paper (needs ``verify``): a candidate containing the current centre whose own centre
     fails the crosscheck is aligned by its surfaces as a ``search_radius`` candidate is, and held to
     the same rules (the crosscheck with the alignment applied, ``verify_min_constraint``,
-    ``verify_near_min_inliers``; reason ``aligned-crosscheck``). It lies nearer than such a
+    ``verify_near_min_inliers``; reason ``realigned-crosscheck``). It lies nearer than such a
     candidate: drift of a metre or two (Intel raw: 1.6-2.1 m) fails the crosscheck of revisits
     whose surfaces say where they are. Off: every such candidate is rejected, as in the paper."""
 

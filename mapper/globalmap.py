@@ -55,6 +55,10 @@ from mapper.se2 import Pose, between, compose, inverse, transform_points
 from mapper.topology import Topology, Transition, child_origin
 from mapper.types import ASR
 
+#: Reasons of matches whose only crosscheck was the one with their surface alignment applied: found
+#: by the search radius (``aligned-crosscheck``), or failing the unaligned one (``realigned-crosscheck``).
+_ALIGNED = ("aligned-crosscheck", "realigned-crosscheck")
+
 
 @dataclass(slots=True)
 class CycleRecord:
@@ -267,7 +271,7 @@ class GlobalMap:
                 # surfaces, it is held to the near candidates' rules (``align_failed_crosscheck``).
                 align = self._align_near(n, m, poly, cm) if p.align_failed_crosscheck else None
                 if align is not None:
-                    survivors.append((overlap, m, cm, "aligned-crosscheck", align))
+                    survivors.append((overlap, m, cm, "realigned-crosscheck", align))
                     continue
                 self._rejected.setdefault((n, m), t)
                 events += self._decide(t, n, m, c, cm, overlap, "centre-crosscheck", False)
@@ -280,8 +284,8 @@ class GlobalMap:
                 events += self._decide(t, n, m, c, cm, overlap, "lower-overlap", False)
                 continue
             align = found or (self._align(n, m) if (p.verify or p.realign) else None)
-            if p.verify and not self._verified(align, n, m, near=rule == "aligned-crosscheck"):
-                if rule != "aligned-crosscheck":
+            if p.verify and not self._verified(align, n, m, near=rule in _ALIGNED):
+                if rule not in _ALIGNED:
                     self._rejected.setdefault((n, m), t)  # hindsight may anchor it later
                 events += self._decide(t, n, m, c, cm, overlap, "verification", False)
                 continue
@@ -400,7 +404,7 @@ class GlobalMap:
         dup, match = self.asrs[n], self.asrs[m]
         dup.duplicate_of = m
         self._closed.add(n)
-        good = align is not None and self._verified(align, n, m, near=reason == "aligned-crosscheck")
+        good = align is not None and self._verified(align, n, m, near=reason in _ALIGNED)
         # dup's frame corrected onto match (global frame), then match's frame seen from dup's.
         dup_origin = compose(align.correction, dup.origin) if good else dup.origin
         rel_nm = between(dup_origin, match.origin)

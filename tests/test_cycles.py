@@ -115,7 +115,7 @@ def test_a_revisit_whose_crosscheck_drift_fails_is_accepted_once_aligned_by_its_
     gm = GlobalMap(FULL)
     events = drive(gm, HINDSIGHT, per_step=WEST)
     # five crossings of 0.15 m drift west: the room's walls say where the revisit lies
-    assert accepted(events) == [(6, 1, "aligned-crosscheck"), (7, 2, "centre-crosscheck")]
+    assert accepted(events) == [(6, 1, "realigned-crosscheck"), (7, 2, "centre-crosscheck")]
     assert [e for e in events if isinstance(e, CycleRejected)] == []
     assert gm.alignments[(6, 1)].correction == pytest.approx((0.75, 0.0, 0.0), abs=0.02)
 
