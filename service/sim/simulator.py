@@ -116,7 +116,9 @@ class SimRobot:
         return np.radians(np.linspace(-90.0, 90.0, n))
 
     def ranges(self, t: float, angles: np.ndarray) -> np.ndarray:
-        """A scan (m) taken at time ``t``: the laser emulators' range source signature."""
+        """A scan (m) taken at time ``t`` (simulated s), beams at ``angles`` (rad, laser frame); a beam
+        that meets nothing reads the caster's ``max_range``, the no-return value the stepped
+        simulation hands the mapper. The emulated LMS takes :meth:`RayCaster.source` instead."""
         return self.caster.scan(self.true_pose_at(t), angles)
 
 
