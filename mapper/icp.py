@@ -205,6 +205,15 @@ def _wrap(theta: float) -> float:
     return t - math.pi
 
 
+@kernel(inline=True)
+def _place(xy: np.ndarray, x: float, y: float, th: float, out: np.ndarray) -> None:
+    """The points ``xy`` (K, 2, robot frame) placed at (x, y, th) (m, m, rad), written to ``out``."""
+    c, s = math.cos(th), math.sin(th)
+    for i in range(xy.shape[0]):
+        out[i, 0] = x + c * xy[i, 0] - s * xy[i, 1]
+        out[i, 1] = y + s * xy[i, 0] + c * xy[i, 1]
+
+
 @kernel
 def icp(xy: np.ndarray, ref: np.ndarray, x: float, y: float, th: float, gates: np.ndarray, inlier: float,
          cell: float, grid) -> tuple[int, float, float, float, np.ndarray, np.ndarray]:
@@ -226,10 +235,7 @@ def icp(xy: np.ndarray, ref: np.ndarray, x: float, y: float, th: float, gates: n
     if not finite:  # no reference, or a pose or point not finite (the grid needs finite queries)
         cur[:] = np.nan
         return 0, x, y, th, cur, j
-    c, s = math.cos(th), math.sin(th)
-    for i in range(k):
-        cur[i, 0] = x + c * xy[i, 0] - s * xy[i, 1]
-        cur[i, 1] = y + s * xy[i, 0] + c * xy[i, 1]
+    _place(xy, x, y, th, cur)
     n = 0
     for gate in gates:
         for i in range(k):
@@ -239,10 +245,7 @@ def icp(xy: np.ndarray, ref: np.ndarray, x: float, y: float, th: float, gates: n
             return n, x, y, th, cur, j
         cr, sr = math.cos(rot), math.sin(rot)
         x, y, th = tx + cr * x - sr * y, ty + sr * x + cr * y, _wrap(rot + th)
-        c, s = math.cos(th), math.sin(th)
-        for i in range(k):
-            cur[i, 0] = x + c * xy[i, 0] - s * xy[i, 1]
-            cur[i, 1] = y + s * xy[i, 0] + c * xy[i, 1]
+        _place(xy, x, y, th, cur)
     for i in range(k):
         j[i], _ = grid_nearest(cur[i, 0], cur[i, 1], inlier, cell, grid)
     return n, x, y, th, cur, j
