@@ -147,17 +147,22 @@ class RobotConfig:
     name: str = _key(_key_chunk, "robot name: the Zenoh key prefix is asrmap/<name>/", default="pioneer")
 
 
+#: bit/s: the host-port rates P2OS offers (HOSTBAUD 0-4) and the LMS2xx's serial rates.
+PIONEER_BAUDS = (9600, 19200, 38400, 57600, 115200)
+LASER_BAUDS = (9600, 19200, 38400, 500000)
+
+
 @dataclass(frozen=True)
 class PioneerConfig:
     port: str = _key(_port, "serial device or pyserial URL of the Pioneer", default="/dev/pioneer")
-    baudrate: int = _key(_one_of(9600, 19200, 38400, 57600, 115200), "P2OS baud rate (bit/s)", default=9600)
+    baudrate: int = _key(_one_of(*PIONEER_BAUDS), "P2OS baud rate (bit/s)", default=9600)
     model: str = _key(_one_of("p2dx"), "robot model (wheel geometry, SIP scaling)", default="p2dx")
 
 
 @dataclass(frozen=True)
 class LaserConfig:
     port: str = _key(_port, "serial device or pyserial URL of the SICK LMS2xx", default="/dev/sick")
-    baudrate: int = _key(_one_of(9600, 19200, 38400, 500000), "LMS2xx baud rate (bit/s)", default=38400)
+    baudrate: int = _key(_one_of(*LASER_BAUDS), "LMS2xx baud rate (bit/s)", default=38400)
     resolution: float = _key(_one_of(0.25, 0.5, 1.0), "angular resolution (degrees)", default=1.0)
     fov: int = _key(_one_of(100, 180), "field of view (degrees)", default=180)
     units: str = _key(_one_of("mm", "cm"), "range units the scanner reports (mm: 8 m max, cm: 80 m max)",

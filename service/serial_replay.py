@@ -42,6 +42,7 @@ from mapper.params import MapperParams
 from mapper.se2 import compose, inverse
 from mapper.types import Odometry, Scan
 from service.carmen import NO_RETURN_M, mapper_inputs
+from service.config import LASER_BAUDS, PIONEER_BAUDS
 from service.evaluate import Track, evaluate, is_corrected, rebuild_corrected, truth_from_log
 from service.replay import ReplayResult, params_for_log
 
@@ -196,12 +197,12 @@ class PlaybackClock:
 
 # --- speed limits ---------------------------------------------------------------------------------------
 
-LASER_BAUD = 500000  # the fastest LMS2xx line (RS-422): what lets the replay run fastest
+LASER_BAUD = max(LASER_BAUDS)  # the fastest LMS2xx line (RS-422): what lets the replay run fastest
 #: The fastest P2OS host line (HOSTBAUD 4). A SIP reaches the host one transfer time after it was
 #: sampled: 32 ms at 9600 baud, after the 500 kbaud scan of that instant (its first ray 14 ms
 #: before), so the service would extrapolate every scan's odometry (over 0.2-0.3 s of recorded
 #: time at 8x). At 115200 a SIP takes 2.7 ms, and the SIPs around each scan are in.
-PIONEER_BAUD = 115200
+PIONEER_BAUD = max(PIONEER_BAUDS)
 
 
 def line_speed_limit(rec: Recording, baud: int = LASER_BAUD) -> float:

@@ -41,6 +41,7 @@ import numpy as np
 from mapper.se2 import Pose, compose, inverse
 from mapper.types import Odometry, Scan
 from pioneer.physics import DiffDrive, OdometryError
+from service.config import LASER_BAUDS, PIONEER_BAUDS
 from service.evaluate import Track, evaluate
 from service.explore import Command, ExploreParams, Explorer, MapView, links_of, scan_points
 from service.sim.physics import Body
@@ -516,14 +517,14 @@ class StackSim:
         # faster: a scan arrives its sweep and transmission after its first ray (the emulator samples
         # the world then, as the reader dates it), 104 ms at 38400 baud, a simulated second at 10x.
         # 500 kbaud makes it 14 ms of wall time.
-        return 38400 if self.speed <= 1.0 else 500000
+        return 38400 if self.speed <= 1.0 else max(LASER_BAUDS)
 
     def _pioneer_baud(self) -> int:
         # The same for the SIPs: one reaches the host 32 ms (wall) after it was sampled at 9600 baud,
         # after the scan of that instant has arrived at 500 kbaud, so the service would extrapolate
         # every scan's odometry over 0.2-0.3 simulated seconds (the lab world's frames then came
         # out 0.2-0.9 m off where the stepped simulation's are 0.1 m). At 115200 a SIP takes 2.7 ms.
-        return 9600 if self.speed <= 1.0 else 115200
+        return 9600 if self.speed <= 1.0 else max(PIONEER_BAUDS)
 
     def _open_laser(self, cfg):
         from service.pipeline import open_laser
