@@ -139,6 +139,16 @@ class CycleParams:
     missed revisits 85 of 245 -> 78 of 249 with no false closure; Intel corrected one more true
     closure. Off: such pieces stay unclosed."""
 
+    drift_bound_sigmas: float = 2.0
+    """Beyond the paper (needs ``verify``): a match ``verify_constrained`` would refuse (a straight
+    corridor piece, whose alignment leaves the position along it open) is accepted when the drift
+    along that open axis is bounded: with the alignment applied, each centre can move at least this
+    many standard deviations along the axis and stay inside the other ASR. The standard deviation is
+    the pose graph's (odometry and loop edges, ``odometry_sigma_xy`` and the rest): how far ``n``
+    may lie from ``m`` along the axis after the chain of transitions and the loops closed between
+    them (:func:`mapper.posegraph.relative_covariance`). Not for ``search_radius`` candidates
+    (their only crosscheck is the aligned one). 0: off (such pieces need ``topological_anchor``)."""
+
     verify_near_min_inliers: float = 0.5
     """Fraction of inliers (as ``verify_min_inliers``) required of a candidate found only by
     ``search_radius``: with no crosscheck behind it, half its surfaces must agree. On MIT CSAIL a

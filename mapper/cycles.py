@@ -64,6 +64,24 @@ def depth_inside(polygon: shapely.Geometry, point: tuple[float, float]) -> float
     return d if polygon.covers(pt) else -d
 
 
+def axis_depth(polygon: shapely.Geometry, point: tuple[float, float], axis: float, reach: float = 100.0
+               ) -> float:
+    """How far (m) ``point`` can move along the direction ``axis`` (rad), either way, before it
+    leaves ``polygon`` (both in one frame): the nearer of the two boundary crossings, at most
+    ``reach``; 0 when the point lies outside."""
+    pt = shapely.Point(point)
+    if polygon.is_empty or not polygon.covers(pt):
+        return 0.0
+    dx, dy = reach * math.cos(axis), reach * math.sin(axis)
+    line = shapely.LineString([(point[0] - dx, point[1] - dy), (point[0] + dx, point[1] + dy)])
+    hits = shapely.get_coordinates(shapely.intersection(line, polygon.boundary))
+    if len(hits) == 0:
+        return reach
+    t = (hits[:, 0] - point[0]) * math.cos(axis) + (hits[:, 1] - point[1]) * math.sin(axis)
+    ahead, behind = t[t >= 0], -t[t <= 0]
+    return float(min(ahead.min() if len(ahead) else reach, behind.min() if len(behind) else reach))
+
+
 def iou(a: shapely.Geometry, b: shapely.Geometry) -> float:
     """Intersection over union of two areas (0..1); 0 for empty geometry."""
     union = shapely.union(a, b).area

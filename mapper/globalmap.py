@@ -40,6 +40,7 @@ from mapper.cycles import (
     Alignment,
     SpatialIndex,
     align_points,
+    axis_depth,
     centre_of,
     depth_inside,
     free_space_violation,
@@ -50,7 +51,7 @@ from mapper.cycles import (
 )
 from mapper.events import CycleDetected, CycleRejected, Event, MapRealigned
 from mapper.exits import segment_distance
-from mapper.posegraph import Edge, diagonal_info, optimise
+from mapper.posegraph import Edge, diagonal_info, optimise, relative_covariance
 from mapper.se2 import Pose, between, compose, inverse, transform_points
 from mapper.topology import Topology, Transition, child_origin
 from mapper.types import ASR
@@ -385,8 +386,27 @@ class GlobalMap:
             and a.shift <= p.verify_max_correction
             and abs(a.correction[2]) <= p.verify_max_rotation
             and a.violation <= p.verify_max_violation
-            and (a.constraint >= p.verify_constrained or (not near and self._anchored(n, m)))
+            and (a.constraint >= p.verify_constrained
+                 or (not near and (self._anchored(n, m) or self._drift_bounded(a, poly_n, c_n, n, m))))
         )
+
+    def _drift_bounded(self, a: Alignment, poly_n: shapely.Geometry, c_n: tuple[float, float], n: int,
+                       m: int) -> bool:
+        """Whether the open axis of an alignment (``a.axis``, global frame: along a straight
+        corridor) is bounded by what the pose graph says of the drift between n and m
+        (``drift_bound_sigmas``): each centre, n's aligned (``poly_n``, ``c_n``), can move that many
+        standard deviations along the axis and stay inside the other ASR."""
+        k = self.params.drift_bound_sigmas
+        if k <= 0:
+            return False
+        cov = relative_covariance({q: tuple(r.origin) for q, r in self.asrs.items()},
+                                  self._odometry_edges + self._loop_edges, m, n)
+        if cov is None:
+            return False
+        d = np.array([math.cos(a.axis), math.sin(a.axis)])
+        sigma = math.sqrt(max(float(d @ cov[:2, :2] @ d), 0.0))
+        poly_m, c_m = global_polygon(self.asrs[m]), global_centre(self.asrs[m])
+        return min(axis_depth(poly_m, c_n, a.axis), axis_depth(poly_n, c_m, a.axis)) >= k * sigma
 
     def _anchored(self, n: int, m: int) -> bool:
         """Whether the topology already places n beside m (``topological_anchor``): a neighbour of n

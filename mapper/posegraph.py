@@ -128,25 +128,7 @@ def optimise(
     done = 0
     while done < iterations:
         done += 1
-        err, a, b = errors_and_jacobians(x[ii], x[jj], z)
-        blocks = [
-            (ii, ii, np.einsum("mka,mkl,mlb->mab", a, info, a)),
-            (ii, jj, np.einsum("mka,mkl,mlb->mab", a, info, b)),
-            (jj, ii, np.einsum("mka,mkl,mlb->mab", b, info, a)),
-            (jj, jj, np.einsum("mka,mkl,mlb->mab", b, info, b)),
-        ]
-        rows, cols, vals = [], [], []
-        r3 = np.arange(3)
-        for p, q, blk in blocks:
-            rows.append((3 * p[:, None, None] + r3[None, :, None]).repeat(3, axis=2).ravel())
-            cols.append((3 * q[:, None, None] + r3[None, None, :]).repeat(3, axis=1).ravel())
-            vals.append(blk.ravel())
-        h = sp.csr_matrix(
-            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * n, 3 * n)
-        )
-        g = np.zeros(3 * n)
-        np.add.at(g, (3 * ii[:, None] + r3).ravel(), np.einsum("mka,mkl,ml->ma", a, info, err).ravel())
-        np.add.at(g, (3 * jj[:, None] + r3).ravel(), np.einsum("mka,mkl,ml->ma", b, info, err).ravel())
+        h, g = _normal_equations(x, ii, jj, z, info)
         hf = h[free][:, free].tocsc()
         dx = np.zeros(3 * n)
         dx[free] = spla.spsolve(hf, -g[free])
@@ -156,3 +138,69 @@ def optimise(
             break
     out = {k: (float(x[c, 0]), float(x[c, 1]), float(x[c, 2])) for k, c in col.items()}
     return Result(out, done, before, chi2(out, edges))
+
+
+def _normal_equations(x: np.ndarray, ii: np.ndarray, jj: np.ndarray, z: np.ndarray, info: np.ndarray):
+    """H = Σ JᵀΩJ (sparse, 3N x 3N) and b = Σ JᵀΩe at the poses ``x`` (N, 3); edge m joins rows
+    ``ii[m]`` and ``jj[m]`` of ``x`` with measurement ``z[m]`` and information ``info[m]``."""
+    n = len(x)
+    err, a, b = errors_and_jacobians(x[ii], x[jj], z)
+    blocks = [
+        (ii, ii, np.einsum("mka,mkl,mlb->mab", a, info, a)),
+        (ii, jj, np.einsum("mka,mkl,mlb->mab", a, info, b)),
+        (jj, ii, np.einsum("mka,mkl,mlb->mab", b, info, a)),
+        (jj, jj, np.einsum("mka,mkl,mlb->mab", b, info, b)),
+    ]
+    rows, cols, vals = [], [], []
+    r3 = np.arange(3)
+    for p, q, blk in blocks:
+        rows.append((3 * p[:, None, None] + r3[None, :, None]).repeat(3, axis=2).ravel())
+        cols.append((3 * q[:, None, None] + r3[None, None, :]).repeat(3, axis=1).ravel())
+        vals.append(blk.ravel())
+    h = sp.csr_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * n, 3 * n)
+    )
+    g = np.zeros(3 * n)
+    np.add.at(g, (3 * ii[:, None] + r3).ravel(), np.einsum("mka,mkl,ml->ma", a, info, err).ravel())
+    np.add.at(g, (3 * jj[:, None] + r3).ravel(), np.einsum("mka,mkl,ml->ma", b, info, err).ravel())
+    return h, g
+
+
+def relative_covariance(poses: dict[int, Pose], edges: list[Edge], i: int, j: int) -> np.ndarray | None:
+    """Covariance (3x3: m², m·rad, rad²; global axes) of node ``j``'s pose with node ``i`` held
+    fixed: how far the graph's edges, linearised at ``poses``, let ``j`` be off relative to ``i``.
+    Along a chain it is the sum of the edges' covariances carried along it; every loop the graph
+    closes between them tightens it. None when no chain of edges joins them."""
+    if i not in poses or j not in poses or i == j:
+        return None
+    adj: dict[int, set[int]] = {}
+    for e in edges:
+        adj.setdefault(e.i, set()).add(e.j)
+        adj.setdefault(e.j, set()).add(e.i)
+    joined, frontier = {i}, [i]  # the nodes a chain of edges joins to i (the rest would be singular)
+    while frontier:
+        for b in adj.get(frontier.pop(), ()):
+            if b not in joined:
+                joined.add(b)
+                frontier.append(b)
+    if j not in joined:
+        return None
+    ids = sorted(joined)
+    col = {k: c for c, k in enumerate(ids)}
+    inside = [e for e in edges if e.i in joined]
+    x = np.array([poses[k] for k in ids], dtype=float)
+    ii = np.array([col[e.i] for e in inside])
+    jj = np.array([col[e.j] for e in inside])
+    h, _ = _normal_equations(x, ii, jj, np.array([e.z for e in inside], dtype=float),
+                             np.stack([e.info for e in inside]))
+    free = np.ones(3 * len(ids), dtype=bool)
+    free[3 * col[i] : 3 * col[i] + 3] = False
+    at = np.flatnonzero(free)
+    rows = np.searchsorted(at, 3 * col[j] + np.arange(3))
+    rhs = np.zeros((len(at), 3))
+    rhs[rows, np.arange(3)] = 1.0
+    sol = spla.spsolve(h[free][:, free].tocsc(), rhs)
+    cov = np.asarray(sol)[rows]
+    if not np.all(np.isfinite(cov)):
+        return None
+    return 0.5 * (cov + cov.T)

@@ -32,12 +32,15 @@ def accepted(events):
     return [(e.asr, e.matches, e.reason) for e in events if isinstance(e, CycleDetected)]
 
 
-@pytest.mark.parametrize("params", [PAPER, FULL, FULL.replace(topological_anchor=False)],
-                         ids=["paper", "extended", "extended-unanchored"])
+@pytest.mark.parametrize("params", [PAPER, FULL,
+                                    FULL.replace(topological_anchor=False, drift_bound_sigmas=0.0),
+                                    FULL.replace(topological_anchor=False)],
+                         ids=["paper", "extended", "extended-unanchored", "extended-drift-bound"])
 def test_corridor_loop_revisit_is_detected_with_no_false_cycle(params):
     gm = GlobalMap(params)
     events = drive(gm, LOOP, per_step=(0.15, -0.1, 0.02))
-    if params.verify_constrained > 0 and params.verify and not params.topological_anchor:
+    if (params.verify_constrained > 0 and params.verify and not params.topological_anchor
+            and params.drift_bound_sigmas == 0):
         # ASR 2 is a straight piece (walls east and west only): the alignment cannot say where
         # along it 6 lies, so without the topological anchor extended mode leaves it unclosed.
         assert accepted(events) == [(5, 1, "centre-crosscheck")]
@@ -45,7 +48,9 @@ def test_corridor_loop_revisit_is_detected_with_no_false_cycle(params):
                    for e in events)
     else:
         # Extended mode: 6 was entered from 5, which closed onto 1, a neighbour of 2; so 6 is the
-        # piece beside 1 (topological_anchor), which its walls alone cannot say.
+        # piece beside 1 (topological_anchor), which its walls alone cannot say. Without the
+        # anchor, the pose graph says the same (drift_bound_sigmas): through the loop edge 5 -> 1,
+        # 6 lies one 10 m transition from 2, well within the 10 m piece.
         assert accepted(events) == [(5, 1, "centre-crosscheck"), (6, 2, "centre-crosscheck")]
         assert gm.asrs[6].duplicate_of == 2
     assert gm.asrs[5].duplicate_of == 1
@@ -246,7 +251,10 @@ def test_a_straight_corridor_aliased_by_drift_along_it_is_not_closed_in_extended
     # ... and so did verification while it asked the alignment for a low residual only.
     loose = FULL.replace(verify_constrained=0.0)
     assert accepted(drive(GlobalMap(loose), STRAIGHT, per_step=drift_along)) == [(3, 1, "centre-crosscheck")]
-    gm = GlobalMap(FULL)
+    # The drift bound takes the pose graph's word, which here is odometry's: 1 m of travel believed
+    # between the pieces' frames, so 7 m of drift is beyond any bound it would set (a localiser
+    # sliding along a featureless corridor could do this; odometry cannot). Without it:
+    gm = GlobalMap(FULL.replace(drift_bound_sigmas=0.0))
     events = drive(gm, STRAIGHT, per_step=drift_along)
     assert accepted(events) == []
     assert [(e.asr, e.matches, e.reason) for e in events if isinstance(e, CycleRejected)] == [
@@ -385,6 +393,26 @@ def test_a_straight_piece_revisited_before_the_corner_is_closed_in_hindsight_by_
     assert (6, 2, "centre-crosscheck") in got and (5, 1, "hindsight") in got, got
     rejected = [(e.asr, e.matches, e.reason) for e in events if isinstance(e, CycleRejected)]
     assert (5, 1, "verification") in rejected
-    # Without the anchor the straight piece stays unclosed.
+    # Without the anchor, the pose graph bounds the drift once 6 -> 2 closed the loop: hindsight
+    # accepts 5 -> 1 all the same (drift_bound_sigmas). Without either the piece stays unclosed.
     events = drive(GlobalMap(FULL.replace(topological_anchor=False)), route, per_step=(0.15, -0.1, 0.02))
+    assert accepted(events) == [(6, 2, "centre-crosscheck"), (5, 1, "hindsight")]
+    events = drive(GlobalMap(FULL.replace(topological_anchor=False, drift_bound_sigmas=0.0)), route,
+                   per_step=(0.15, -0.1, 0.02))
     assert accepted(events) == [(6, 2, "centre-crosscheck")]
+
+
+def test_a_straight_piece_is_closed_by_the_drift_bound_only_while_the_pose_graph_bounds_the_drift():
+    # LOOP's 6 onto 2 is a straight piece (walls east and west): with the anchor off, the pose graph
+    # decides. With odometry trusted to 5 cm a metre, 6 lies within 2 by far more than twice its
+    # standard deviation along the piece; with 0.6 m a metre (a graph that cannot bound the drift)
+    # the same match is refused, as verify_constrained alone refuses it.
+    unanchored = FULL.replace(topological_anchor=False)
+    gm = GlobalMap(unanchored)
+    assert (6, 2, "centre-crosscheck") in accepted(drive(gm, LOOP, per_step=(0.15, -0.1, 0.02)))
+    assert gm.alignments[(6, 2)].constraint < 0.01
+    loose = GlobalMap(unanchored.replace(odometry_sigma_xy=0.6))
+    events = drive(loose, LOOP, per_step=(0.15, -0.1, 0.02))
+    assert accepted(events) == [(5, 1, "centre-crosscheck")]
+    assert any(isinstance(e, CycleRejected) and (e.asr, e.matches, e.reason) == (6, 2, "verification")
+               for e in events)

@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mapper.posegraph import Edge, diagonal_info, errors_and_jacobians, optimise
+from mapper.posegraph import Edge, diagonal_info, errors_and_jacobians, optimise, relative_covariance
 from mapper.se2 import between, compose
 
 pose = st.tuples(st.floats(-10, 10), st.floats(-10, 10), st.floats(-math.pi + 1e-3, math.pi - 1e-3))
@@ -78,3 +78,45 @@ def test_nodes_without_edges_and_the_fixed_node_do_not_move():
     res = optimise(poses, edges)
     assert res.poses[9] == poses[9] and res.poses[1] == poses[1]
     np.testing.assert_allclose(res.poses[2], (2.0, 0.0, 0.0), atol=1e-9)
+
+
+def test_relative_covariance_sums_a_chain_and_a_second_path_tightens_it():
+    # Three nodes along x, heading 0, rotation pinned: j's covariance seen from i is the sum of the
+    # two edges' translation covariances.
+    pinned = 1e-6
+    edges = [Edge(0, 1, (2.0, 0.0, 0.0), diagonal_info(0.1, pinned)),
+             Edge(1, 2, (2.0, 0.0, 0.0), diagonal_info(0.2, pinned))]
+    poses = {0: (0.0, 0.0, 0.0), 1: (2.0, 0.0, 0.0), 2: (4.0, 0.0, 0.0)}
+    cov = relative_covariance(poses, edges, 0, 2)
+    np.testing.assert_allclose(cov[:2, :2], np.diag([0.05, 0.05]), rtol=1e-4, atol=1e-9)
+    # the same seen from 2: symmetric
+    np.testing.assert_allclose(relative_covariance(poses, edges, 2, 0)[:2, :2], cov[:2, :2], rtol=1e-4)
+    # a second, independent path of the same covariance between 0 and 2 halves it
+    loop = [*edges, Edge(0, 2, (4.0, 0.0, 0.0), diagonal_info(math.sqrt(0.05), pinned))]
+    np.testing.assert_allclose(relative_covariance(poses, loop, 0, 2)[:2, :2], np.diag([0.025, 0.025]),
+                               rtol=1e-4, atol=1e-9)
+
+
+def test_relative_covariance_carries_heading_uncertainty_into_the_lateral_position():
+    # Frame 1 lies 5 m along x from frame 0 with 0.1 rad of heading uncertainty, translation exact:
+    # its origin is certain, its heading is not; frame 2, 3 m further along frame 1's x axis (an
+    # exact edge), is 0.3 m uncertain sideways (y) and not along x.
+    exact = np.diag([1e8, 1e8, 1e8])
+    edges = [Edge(0, 1, (5.0, 0.0, 0.0), np.diag([1e8, 1e8, 100.0])), Edge(1, 2, (3.0, 0.0, 0.0), exact)]
+    poses = {0: (0.0, 0.0, 0.0), 1: (5.0, 0.0, 0.0), 2: (8.0, 0.0, 0.0)}
+    cov1 = relative_covariance(poses, edges, 0, 1)
+    assert cov1[0, 0] < 1e-6 and cov1[1, 1] < 1e-6
+    np.testing.assert_allclose(math.sqrt(cov1[2, 2]), 0.1, rtol=1e-4)
+    cov2 = relative_covariance(poses, edges, 0, 2)
+    np.testing.assert_allclose(math.sqrt(cov2[1, 1]), 0.3, rtol=1e-4)
+    assert cov2[0, 0] < 1e-6
+
+
+def test_relative_covariance_is_none_for_unjoined_or_unknown_nodes():
+    poses = {0: (0.0, 0.0, 0.0), 1: (1.0, 0.0, 0.0), 5: (9.0, 9.0, 0.0), 6: (9.0, 8.0, 0.0)}
+    edges = [Edge(0, 1, (1.0, 0.0, 0.0), diagonal_info(0.1, 0.1)),
+             Edge(5, 6, (0.0, -1.0, 0.0), diagonal_info(0.1, 0.1))]
+    assert relative_covariance(poses, edges, 0, 5) is None
+    assert relative_covariance(poses, edges, 0, 7) is None
+    assert relative_covariance(poses, edges, 1, 1) is None
+    assert relative_covariance(poses, edges, 0, 1) is not None
