@@ -1342,8 +1342,10 @@ class Explorer:
 
     def _aim(self, target: tuple[float, float], pose: Pose, t: float) -> tuple[tuple[float, float], float]:
         """Where to steer now on the way to ``target`` (ASR frame), and the distance left (m): the
-        target itself when the straight line to it stays inside the ASR (or either end lies
-        outside it), else a point ``path_lookahead`` along a path planned inside the ASR."""
+        target itself when the straight line to it stays inside the ASR, shrunk by the robot's
+        half width, else a point ``path_lookahead`` along a path planned inside the ASR (from the
+        free cells nearest the robot and the target, which may lie outside it: a robot beside a
+        wall, a target beyond an exit). No path found: the target itself."""
         p = self.p
         direct = (target, math.hypot(target[0] - pose[0], target[1] - pose[1]))
         asr = self._asr
@@ -1359,8 +1361,7 @@ class Explorer:
             poly = self._map_area(self._view, asr) if far else shapely.make_valid(asr.polygon)
             inner = poly.buffer(-p.half_width)
             line = shapely.LineString([pose[:2], target])
-            ends_in = inner.covers(shapely.Point(pose[:2])) and inner.covers(shapely.Point(target))
-            if ends_in and not inner.covers(line):
+            if not inner.covers(line):
                 self._path = plan_path(poly, (pose[0], pose[1]), target, p.path_cell, p.path_clearance)
         path = self._path
         if path is None or len(path) < 2:
