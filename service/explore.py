@@ -285,6 +285,9 @@ class Memory:
     #: Exits seen shut (a surface right behind them, :meth:`Planner.shut_exits`), by midpoint per
     #: ASR (its frame); not retried: a wall does not move.
     shut_at: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
+    #: Exits the robot crossed into an ASR already known, by midpoint per ASR (its frame): they
+    #: lead into mapped space, whether or not the mapper linked them; not retried.
+    crossed_at: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
 
 
 def unknown_runs(asr: ASR) -> list[tuple[np.ndarray, float]]:
@@ -412,11 +415,17 @@ class Planner:
         if midpoint is not None:
             self.memory.failed_at.setdefault(asr, []).append((float(midpoint[0]), float(midpoint[1])))
 
+    def crossed_into_known(self, asr: int, midpoint: tuple[float, float]) -> None:
+        """The robot crossed the exit of ``asr`` at ``midpoint`` (its frame) into an ASR already
+        known: that exit needs no visit (see ``Memory.crossed_at``)."""
+        self.memory.crossed_at.setdefault(asr, []).append((float(midpoint[0]), float(midpoint[1])))
+
     def _failed(self, asr: ASR, ex: Exit) -> bool:
         if (asr.id, ex.id) in self.memory.failed_exits:
             return True
         m = ex.midpoint
-        near = list(self.memory.failed_at.get(asr.id, ())) + list(self.memory.shut_at.get(asr.id, ()))
+        mem = self.memory
+        near = [*mem.failed_at.get(asr.id, ()), *mem.shut_at.get(asr.id, ()), *mem.crossed_at.get(asr.id, ())]
         return any(math.hypot(m[0] - q[0], m[1] - q[1]) < 0.5 for q in near)
 
     def shut_exits(self, view: MapView, points: np.ndarray) -> int:
@@ -1014,6 +1023,8 @@ class Explorer:
         self.finished = False
         self._retry_round, self._retry_start = 0, 0.0  # the planner's retry round, and when it began
         self._newest_asr = -1  # the newest ASR id _new_space has seen
+        self._last_current: int | None = None  # the current ASR and the known ids at the last step
+        self._known_ids: frozenset[int] = frozenset()
         self.counts = {"goals": 0, "unknown": 0, "exits": 0, "backtracks": 0, "stuck": 0, "failed": 0,
                        "unjam": 0}
 
@@ -1144,6 +1155,7 @@ class Explorer:
 
     def _step(self, view: MapView, points: np.ndarray, t: float) -> Command:
         self._t = t
+        self._note_crossing(view)
         self._asr = view.asrs.get(view.current) if view.current is not None else None
         self._view = view
         if view.current in view.asrs:
@@ -1188,6 +1200,20 @@ class Explorer:
                 return Command(0.0, 0.0, "in the new ASR")
             return self._drive_to(g.target, pose, points, t, "into the new ASR")  # type: ignore[arg-type]
         return self._traverse(g, pose, points, t)
+
+    def _note_crossing(self, view: MapView) -> None:
+        """An unexplored exit just crossed (the robot was driving through it) into an ASR the map
+        already held is explored (the mapper re-entered a known ASR without a transition through
+        that exit, e.g. one the robot left elsewhere): else the planner sends the robot through
+        it again and again (``office`` seed 0 spent 900 s so between two ASRs of one room, and
+        never reached the last room)."""
+        prev, self._last_current = self._last_current, view.current
+        known, self._known_ids = self._known_ids, frozenset(view.asrs)
+        g = self.goal
+        if (g is not None and g.kind == "exit" and self.phase == "through" and g.asr == prev
+                and g.exit_mid is not None
+                and view.current is not None and view.current != prev and view.current in known):
+            self.planner.crossed_into_known(g.asr, g.exit_mid)
 
     def _new_space(self, view: MapView) -> bool:
         """Whether the map has gained an ASR whose centre (global frame) lies inside no earlier ASR

@@ -495,3 +495,27 @@ def test_the_planners_caches_follow_the_boundary_not_the_array_object():
     got = planner._geometry(b, ex)
     b.boundary[1:3, 0] = 14.0
     assert planner._geometry(b, ex)[1] == Planner()._geometry(b, ex)[1] != got[1]
+
+
+def test_an_exit_crossed_into_an_asr_already_known_is_not_taken_again():
+    # Exit 1/0 leads (the robot finds) into ASR 2, known already, and the mapper re-entered 2
+    # without a transition through 1/0 (placed elsewhere by drift, so nothing marks 1/0 known).
+    # Back in 1, the planner must not send the robot through 1/0 again: it leads into mapped space.
+    a1 = room(1, 0, 0, 4, 4, edges=EAST_EXIT, exits=[door(1, 0, (4, 1), (4, 3))])
+    a2 = room(2, 0, 0, 4, 4, origin=(30.0, 30.0, 0.0))
+    ex = Explorer()
+    none = np.zeros((0, 2))
+    ex.step(view([a1, a2], 1, pose=(1.0, 2.0, 0.0)), none, 0.0)
+    assert ex.goal.kind == "exit" and ex.goal.exit == "1/0"
+    # at the staging point the robot drives through; the mapper then says it is in 2
+    ex.step(view([a1, a2], 1, pose=(*ex.goal.target, 0.0)), none, 0.5)
+    assert ex.phase == "through"
+    ex.step(view([a1, a2], 2, pose=(1.0, 2.0, 0.0)), none, 1.0)
+    assert ex.planner.memory.crossed_at == {1: [(4.0, 2.0)]}
+    assert ex.planner.unexplored_exits(view([a1, a2], 1), a1) == []
+    # Crossing into an ASR created by that crossing records nothing (the mapper links it).
+    fresh = Explorer()
+    fresh.step(view([a1], 1, pose=(1.0, 2.0, 0.0)), none, 0.0)
+    fresh.step(view([a1], 1, pose=(*fresh.goal.target, 0.0)), none, 0.5)
+    fresh.step(view([a1, room(3, 0, 0, 4, 4, origin=(30.0, 30.0, 0.0))], 3), none, 1.0)
+    assert fresh.planner.memory.crossed_at == {}
