@@ -1233,7 +1233,10 @@ class Explorer:
 
     def _settle(self, view: MapView) -> Goal | None:
         """After a crossing (the goal was an exit of another ASR), the point beyond that exit in the
-        new ASR's frame, through the global frame both ASRs are placed in."""
+        new ASR's frame, through the global frame both ASRs are placed in; none when that point
+        lies outside the new ASR (drift, or a notch the new ASR's gates cut round the exit): driving
+        there would only leave the new ASR again (``lab`` seed 15 flipped so between two ASRs for
+        200 s)."""
         g = self.goal
         if (g is None or g.kind not in ("exit", "backtrack") or self.phase != "through" or g.through is None
                 or g.asr not in view.asrs or view.current not in view.asrs or g.asr == view.current):
@@ -1242,6 +1245,8 @@ class Explorer:
         glob = transform_points(old.origin, np.array([g.through]))
         local = transform_points(inverse(new.origin), glob)[0]
         if math.hypot(local[0] - view.pose[0], local[1] - view.pose[1]) < self.p.settle_min:
+            return None
+        if len(new.boundary) >= 3 and not shapely.contains_xy(new.polygon, float(local[0]), float(local[1])):
             return None
         return Goal("settle", new.id, target=(float(local[0]), float(local[1])))
 

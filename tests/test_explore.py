@@ -519,3 +519,21 @@ def test_an_exit_crossed_into_an_asr_already_known_is_not_taken_again():
     fresh.step(view([a1], 1, pose=(*fresh.goal.target, 0.0)), none, 0.5)
     fresh.step(view([a1, room(3, 0, 0, 4, 4, origin=(30.0, 30.0, 0.0))], 3), none, 1.0)
     assert fresh.planner.memory.crossed_at == {}
+
+
+def test_after_a_crossing_the_robot_settles_beyond_the_exit_only_inside_the_new_asr():
+    # Through exit 1/0 (east side of room 1) into ASR 2, whose frame sits on that side: the point
+    # beyond the exit is the settle target, in 2's frame, when 2 holds it; when it lies outside 2
+    # (a notch cut round the entrance, or drift), driving there would leave 2 at once: no settle.
+    a1 = room(1, 0, 0, 4, 4, edges=EAST_EXIT, exits=[door(1, 0, (4, 1), (4, 3))])
+    ex = Explorer()
+    none = np.zeros((0, 2))
+    ex.step(view([a1], 1, pose=(1.0, 2.0, 0.0)), none, 0.0)
+    ex.step(view([a1], 1, pose=(*ex.goal.target, 0.0)), none, 0.5)
+    assert ex.phase == "through"
+    beyond = ex.goal.through[0] - 4.0  # m past the exit line, along 2's x axis
+    holds = room(2, 0, 0, 4, 4, origin=(4.0, 0.0, 0.0))
+    g = ex._settle(view([a1, holds], 2, pose=(0.0, 0.5, 0.0)))
+    assert g is not None and g.kind == "settle" and g.target == pytest.approx((beyond, 2.0))
+    notched = room(2, beyond + 0.3, 0, 4, 4, origin=(4.0, 0.0, 0.0))
+    assert ex._settle(view([a1, notched], 2, pose=(beyond + 0.5, 0.5, 0.0))) is None
