@@ -387,15 +387,16 @@ class GlobalMap:
             and abs(a.correction[2]) <= p.verify_max_rotation
             and a.violation <= p.verify_max_violation
             and (a.constraint >= p.verify_constrained
-                 or (not near and (self._anchored(n, m) or self._drift_bounded(a, poly_n, c_n, n, m))))
+                 or (not near and (self._anchored(n, m)
+                                   or self._drift_bounded(a, n, m, (poly_n, c_n), (poly_m, c_m)))))
         )
 
-    def _drift_bounded(self, a: Alignment, poly_n: shapely.Geometry, c_n: tuple[float, float], n: int,
-                       m: int) -> bool:
+    def _drift_bounded(self, a: Alignment, n: int, m: int, placed_n: tuple, placed_m: tuple) -> bool:
         """Whether the open axis of an alignment (``a.axis``, global frame: along a straight
         corridor) is bounded by what the pose graph says of the drift between n and m
-        (``drift_bound_sigmas``): each centre, n's aligned (``poly_n``, ``c_n``), can move that many
-        standard deviations along the axis and stay inside the other ASR."""
+        (``drift_bound_sigmas``): each centre can move that many standard deviations along the axis
+        and stay inside the other ASR. ``placed_n``, ``placed_m``: (polygon, centre) of each in the
+        global frame, n's with the alignment applied."""
         k = self.params.drift_bound_sigmas
         if k <= 0:
             return False
@@ -405,7 +406,7 @@ class GlobalMap:
             return False
         d = np.array([math.cos(a.axis), math.sin(a.axis)])
         sigma = math.sqrt(max(float(d @ cov[:2, :2] @ d), 0.0))
-        poly_m, c_m = global_polygon(self.asrs[m]), global_centre(self.asrs[m])
+        (poly_n, c_n), (poly_m, c_m) = placed_n, placed_m
         return min(axis_depth(poly_m, c_n, a.axis), axis_depth(poly_n, c_m, a.axis)) >= k * sigma
 
     def _anchored(self, n: int, m: int) -> bool:

@@ -290,6 +290,11 @@ class Memory:
     crossed_at: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
 
 
+def _add_point(store: dict[int, list[tuple[float, float]]], asr: int, point) -> None:
+    """Add ``point`` (m, ``asr``'s frame) to ``store``'s list for ``asr``."""
+    store.setdefault(asr, []).append((float(point[0]), float(point[1])))
+
+
 def unknown_runs(asr: ASR) -> list[tuple[np.ndarray, float]]:
     """Maximal runs of consecutive ``unknown`` edges of the boundary: (points (K, 2), length m)."""
     b = np.asarray(asr.boundary, dtype=float)
@@ -413,12 +418,12 @@ class Planner:
     def failed(self, asr: int, exit_id: str, midpoint: tuple[float, float] | None = None) -> None:
         self.memory.failed_exits.add((asr, exit_id))
         if midpoint is not None:
-            self.memory.failed_at.setdefault(asr, []).append((float(midpoint[0]), float(midpoint[1])))
+            _add_point(self.memory.failed_at, asr, midpoint)
 
     def crossed_into_known(self, asr: int, midpoint: tuple[float, float]) -> None:
         """The robot crossed the exit of ``asr`` at ``midpoint`` (its frame) into an ASR already
         known: that exit needs no visit (see ``Memory.crossed_at``)."""
-        self.memory.crossed_at.setdefault(asr, []).append((float(midpoint[0]), float(midpoint[1])))
+        _add_point(self.memory.crossed_at, asr, midpoint)
 
     def _failed(self, asr: ASR, ex: Exit) -> bool:
         if (asr.id, ex.id) in self.memory.failed_exits:
@@ -452,7 +457,7 @@ class Planner:
             across = rel @ np.array([-n[1], n[0]])
             inside = (along > -0.05) & (along < self.p.shut_depth) & (np.abs(across) < self.p.shut_width / 2)
             if int(inside.sum()) >= self.p.shut_points:
-                self.memory.shut_at.setdefault(asr.id, []).append((float(mid[0]), float(mid[1])))
+                _add_point(self.memory.shut_at, asr.id, mid)
                 log.info("exploration: exit %s of ASR %s is shut (a surface right behind it)", ex.id, asr.id)
                 n_shut += 1
         return n_shut
@@ -1023,8 +1028,8 @@ class Explorer:
         self.finished = False
         self._retry_round, self._retry_start = 0, 0.0  # the planner's retry round, and when it began
         self._newest_asr = -1  # the newest ASR id _new_space has seen
-        self._last_current: int | None = None  # the current ASR and the known ids at the last step
-        self._known_ids: frozenset[int] = frozenset()
+        self._last_current: int | None = None  # the current ASR at the last step
+        self._last_newest = -1  # the newest ASR id at the last step (ids only grow)
         self.counts = {"goals": 0, "unknown": 0, "exits": 0, "backtracks": 0, "stuck": 0, "failed": 0,
                        "unjam": 0}
 
@@ -1208,11 +1213,11 @@ class Explorer:
         it again and again (``office`` seed 0 spent 900 s so between two ASRs of one room, and
         never reached the last room)."""
         prev, self._last_current = self._last_current, view.current
-        known, self._known_ids = self._known_ids, frozenset(view.asrs)
+        newest, self._last_newest = self._last_newest, max(view.asrs, default=-1)
         g = self.goal
         if (g is not None and g.kind == "exit" and self.phase == "through" and g.asr == prev
                 and g.exit_mid is not None
-                and view.current is not None and view.current != prev and view.current in known):
+                and view.current is not None and view.current != prev and view.current <= newest):
             self.planner.crossed_into_known(g.asr, g.exit_mid)
 
     def _new_space(self, view: MapView) -> bool:
