@@ -149,6 +149,15 @@ class CycleParams:
     them (:func:`mapper.posegraph.relative_covariance`). Not for ``search_radius`` candidates
     (their only crosscheck is the aligned one). 0: off (such pieces need ``topological_anchor``)."""
 
+    exit_pin_sigmas: float = 2.0
+    """Beyond the paper (needs ``verify``): an alignment whose surfaces leave the position along
+    them open (``verify_constrained`` not met: a straight corridor piece) is moved along that axis
+    so that the exits of the two ASRs meet (doorways in the corridor's walls, its ends), and then
+    counts as constrained (:func:`mapper.cycles.exit_pin`). The exits must agree within
+    ``verify_inlier_distance``, and the shift must be the only one within this many of the pose
+    graph's standard deviations along the axis (as ``drift_bound_sigmas``; at most
+    ``verify_max_correction``): a row of like doorways closer than the drift cannot pin. 0: off."""
+
     verify_near_min_inliers: float = 0.5
     """Fraction of inliers (as ``verify_min_inliers``) required of a candidate found only by
     ``search_radius``: with no crosscheck behind it, half its surfaces must agree. On MIT CSAIL a

@@ -19,6 +19,8 @@ from mapper.nearest import point_tree
 from mapper.se2 import Pose, compose, transform_points, wrap
 from mapper.types import ASR
 
+_PARALLEL = math.cos(math.radians(20.0))  # two directions within 20° of each other
+
 
 def global_polygon(asr: ASR, origin: Pose | None = None) -> shapely.Polygon:
     """The ASR's polygon in the global frame (its ``origin``, or the one given), made valid.
@@ -194,6 +196,51 @@ class Alignment:
     violation: float = 0.0
     """Fraction of surface points that, after the alignment, lie inside the other ASR's free space
     (deeper than a margin into its polygon): walls where the other place has none. Set by the caller."""
+    pinned: float | None = None
+    """m: when the surfaces left ``axis`` open and the two ASRs' exits fixed it (:func:`exit_pin`),
+    the shift along ``axis`` that was added to ``correction``; None otherwise. Set by the caller."""
+
+
+def exit_segments(asr: ASR, origin: Pose | None = None) -> np.ndarray:
+    """The ASR's exits as segments (E, 2, 2) in the global frame (placed at its ``origin``, or the
+    one given), m."""
+    if not asr.exits:
+        return np.zeros((0, 2, 2))
+    ends = np.array([[e.a, e.b] for e in asr.exits], dtype=float).reshape(-1, 2)
+    return transform_points(asr.origin if origin is None else origin, ends).reshape(-1, 2, 2)
+
+
+def exit_pin(seg_p: np.ndarray, seg_q: np.ndarray, axis: float, tolerance: float, reach: float
+             ) -> tuple[float, int] | None:
+    """Where along ``axis`` (rad) the exits of one ASR meet those of another, both (E, 2, 2) in one
+    frame (m): the shift s (m) that moves P's exits along the axis onto Q's, and how many pairs agree
+    on it. Two exits are a pair when, shifted, their midpoints lie within ``tolerance`` (m) of each
+    other, they are parallel to within 20° and their widths differ by at most ``tolerance``.
+
+    A straight corridor's walls leave the position along it open (:attr:`Alignment.axis`); its
+    doorways and ends do not. None unless the pair needing the smallest shift is within ``reach``
+    (m: how far the drift can have put them apart) and every pair within ``reach`` agrees with it
+    (within ``tolerance``): a row of like doorways closer than the drift cannot say which is which.
+    """
+    if len(seg_p) == 0 or len(seg_q) == 0 or reach <= 0:
+        return None
+    d = np.array([math.cos(axis), math.sin(axis)])
+    normal = np.array([-d[1], d[0]])
+    vp, vq = seg_p[:, 1] - seg_p[:, 0], seg_q[:, 1] - seg_q[:, 0]
+    wp, wq = np.hypot(vp[:, 0], vp[:, 1]), np.hypot(vq[:, 0], vq[:, 1])
+    off = seg_q.mean(axis=1)[None, :, :] - seg_p.mean(axis=1)[:, None, :]  # (P, Q, 2)
+    along, across = off @ d, off @ normal
+    cos = np.abs(vp @ vq.T) / np.maximum(np.outer(wp, wq), 1e-12)
+    alike = (cos >= _PARALLEL) & (np.abs(wp[:, None] - wq[None, :]) <= tolerance)
+    pair = alike & (np.abs(across) <= tolerance) & (np.abs(along) <= reach)
+    shifts = along[pair]
+    if len(shifts) == 0:
+        return None
+    s = float(shifts[np.argmin(np.abs(shifts))])
+    agree = np.abs(shifts - s) <= tolerance
+    if not agree.all():
+        return None
+    return float(np.mean(shifts[agree])), int(np.count_nonzero(agree))
 
 
 def free_space_violation(points: np.ndarray, polygon: shapely.Geometry, margin: float) -> float:

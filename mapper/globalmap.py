@@ -43,6 +43,8 @@ from mapper.cycles import (
     axis_depth,
     centre_of,
     depth_inside,
+    exit_pin,
+    exit_segments,
     free_space_violation,
     global_centre,
     global_polygon,
@@ -358,6 +360,8 @@ class GlobalMap:
             a = None if a is None else dataclasses.replace(a, correction=inverse(a.correction))
         if a is None:
             return None
+        if a.constraint < p.verify_constrained:
+            a = self._pin_by_exits(a, n, m, pn)
         # Free-space consistency: once aligned, neither ASR may show walls inside the other's space.
         moved = transform_points(a.correction, pn)
         poly_n = shapely.transform(global_polygon(self.asrs[n]), lambda c: transform_points(a.correction, c))
@@ -367,6 +371,39 @@ class GlobalMap:
             free_space_violation(pm, poly_n, margin),
         )
         return dataclasses.replace(a, violation=violation)
+
+    def _pin_by_exits(self, a: Alignment, n: int, m: int, pn: np.ndarray) -> Alignment:
+        """``exit_pin_sigmas``: an alignment whose surfaces left its axis open (a straight corridor
+        piece), moved along it so that the exits of n (aligned) meet those of m (:func:`exit_pin`,
+        within ``verify_inlier_distance``); the drift bound of :meth:`_axis_sigma` is how far they
+        may have been apart. ``pn``: n's surface points (global frame), for the new ``shift``. The
+        alignment unchanged when the exits do not say where along the axis n lies."""
+        p = self.params
+        k = p.exit_pin_sigmas
+        sigma = self._axis_sigma(n, m, a.axis) if k > 0 else None
+        if sigma is None:
+            return a
+        placed = compose(a.correction, self.asrs[n].origin)
+        pin = exit_pin(exit_segments(self.asrs[n], placed), exit_segments(self.asrs[m]), a.axis,
+                       p.verify_inlier_distance, min(k * sigma, p.verify_max_correction))
+        if pin is None:
+            return a
+        s = pin[0]
+        correction = compose((s * math.cos(a.axis), s * math.sin(a.axis), 0.0), a.correction)
+        shift = float(np.hypot(*(transform_points(correction, pn).mean(axis=0) - pn.mean(axis=0))))
+        return dataclasses.replace(a, correction=correction, shift=shift, pinned=s)
+
+    def _axis_sigma(self, n: int, m: int, axis: float) -> float | None:
+        """Standard deviation (m) of where n lies relative to m along the direction ``axis`` (rad,
+        global frame), by the pose graph (odometry and loop edges): the drift the chain of
+        transitions and the loops closed between them allow (:func:`relative_covariance`). None
+        when no chain joins them."""
+        cov = relative_covariance({q: tuple(r.origin) for q, r in self.asrs.items()},
+                                  self._odometry_edges + self._loop_edges, m, n)
+        if cov is None:
+            return None
+        d = np.array([math.cos(axis), math.sin(axis)])
+        return math.sqrt(max(float(d @ cov[:2, :2] @ d), 0.0))
 
     def _verified(self, a: Alignment | None, n: int, m: int, near: bool = False) -> bool:
         """The alignment is good, and with it applied to n the centre crosscheck still passes: by
@@ -386,7 +423,7 @@ class GlobalMap:
             and a.shift <= p.verify_max_correction
             and abs(a.correction[2]) <= p.verify_max_rotation
             and a.violation <= p.verify_max_violation
-            and (a.constraint >= p.verify_constrained
+            and (a.constraint >= p.verify_constrained or a.pinned is not None
                  or (not near and (self._anchored(n, m)
                                    or self._drift_bounded(a, n, m, (poly_n, c_n), (poly_m, c_m)))))
         )
@@ -398,14 +435,9 @@ class GlobalMap:
         and stay inside the other ASR. ``placed_n``, ``placed_m``: (polygon, centre) of each in the
         global frame, n's with the alignment applied."""
         k = self.params.drift_bound_sigmas
-        if k <= 0:
+        sigma = self._axis_sigma(n, m, a.axis) if k > 0 else None
+        if sigma is None:
             return False
-        cov = relative_covariance({q: tuple(r.origin) for q, r in self.asrs.items()},
-                                  self._odometry_edges + self._loop_edges, m, n)
-        if cov is None:
-            return False
-        d = np.array([math.cos(a.axis), math.sin(a.axis)])
-        sigma = math.sqrt(max(float(d @ cov[:2, :2] @ d), 0.0))
         (poly_n, c_n), (poly_m, c_m) = placed_n, placed_m
         return min(axis_depth(poly_m, c_n, a.axis), axis_depth(poly_n, c_m, a.axis)) >= k * sigma
 

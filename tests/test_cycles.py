@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from mapper.cycle_params import CycleParams
-from mapper.cycles import Alignment, SpatialIndex, align_points
+from mapper.cycles import Alignment, SpatialIndex, align_points, exit_pin
 from mapper.events import CycleDetected, CycleRejected, MapRealigned
 from mapper.globalmap import GlobalMap
-from mapper.se2 import between, transform_points
+from mapper.se2 import between, compose, transform_points
 from mapper.types import Exit
-from tests.synthetic_asrs import box_asr, drive
+from tests.synthetic_asrs import box_asr, drift, drive
 
 PAPER = CycleParams.paper()
 FULL = CycleParams()
@@ -32,15 +32,17 @@ def accepted(events):
     return [(e.asr, e.matches, e.reason) for e in events if isinstance(e, CycleDetected)]
 
 
-@pytest.mark.parametrize("params", [PAPER, FULL,
-                                    FULL.replace(topological_anchor=False, drift_bound_sigmas=0.0),
-                                    FULL.replace(topological_anchor=False)],
-                         ids=["paper", "extended", "extended-unanchored", "extended-drift-bound"])
+UNANCHORED = FULL.replace(topological_anchor=False, drift_bound_sigmas=0.0, exit_pin_sigmas=0.0)
+
+
+@pytest.mark.parametrize("params", [PAPER, FULL, UNANCHORED, UNANCHORED.replace(drift_bound_sigmas=2.0),
+                                    UNANCHORED.replace(exit_pin_sigmas=2.0)],
+                         ids=["paper", "extended", "extended-unanchored", "extended-drift-bound",
+                              "extended-exit-pin"])
 def test_corridor_loop_revisit_is_detected_with_no_false_cycle(params):
     gm = GlobalMap(params)
     events = drive(gm, LOOP, per_step=(0.15, -0.1, 0.02))
-    if (params.verify_constrained > 0 and params.verify and not params.topological_anchor
-            and params.drift_bound_sigmas == 0):
+    if params == UNANCHORED:
         # ASR 2 is a straight piece (walls east and west only): the alignment cannot say where
         # along it 6 lies, so without the topological anchor extended mode leaves it unclosed.
         assert accepted(events) == [(5, 1, "centre-crosscheck")]
@@ -50,7 +52,8 @@ def test_corridor_loop_revisit_is_detected_with_no_false_cycle(params):
         # Extended mode: 6 was entered from 5, which closed onto 1, a neighbour of 2; so 6 is the
         # piece beside 1 (topological_anchor), which its walls alone cannot say. Without the
         # anchor, the pose graph says the same (drift_bound_sigmas): through the loop edge 5 -> 1,
-        # 6 lies one 10 m transition from 2, well within the 10 m piece.
+        # 6 lies one 10 m transition from 2, well within the 10 m piece. And without either, the
+        # exits do (exit_pin_sigmas): the piece's ends, aligned, say where along it 6 lies.
         assert accepted(events) == [(5, 1, "centre-crosscheck"), (6, 2, "centre-crosscheck")]
         assert gm.asrs[6].duplicate_of == 2
     assert gm.asrs[5].duplicate_of == 1
@@ -387,17 +390,19 @@ def test_a_straight_piece_revisited_before_the_corner_is_closed_in_hindsight_by_
     # Round the block from the west side: the west piece is met again (5 onto 1) before the corner
     # (6 onto 2). 5's walls all run north-south, so its match waits; once 6 closes onto the corner,
     # 5 lies beside the same place as 1 does, and hindsight accepts it (topological_anchor).
+    # (The pieces' ends are exits, which would pin 5 at once: exit_pin_sigmas is off here.)
     route = [LOOP[3], LOOP[0], LOOP[1], LOOP[2], LOOP[3], LOOP[0]]
-    events = drive(GlobalMap(FULL), route, per_step=(0.15, -0.1, 0.02))
+    unpinned = FULL.replace(exit_pin_sigmas=0.0)
+    events = drive(GlobalMap(unpinned), route, per_step=(0.15, -0.1, 0.02))
     got = accepted(events)
     assert (6, 2, "centre-crosscheck") in got and (5, 1, "hindsight") in got, got
     rejected = [(e.asr, e.matches, e.reason) for e in events if isinstance(e, CycleRejected)]
     assert (5, 1, "verification") in rejected
     # Without the anchor, the pose graph bounds the drift once 6 -> 2 closed the loop: hindsight
     # accepts 5 -> 1 all the same (drift_bound_sigmas). Without either the piece stays unclosed.
-    events = drive(GlobalMap(FULL.replace(topological_anchor=False)), route, per_step=(0.15, -0.1, 0.02))
+    events = drive(GlobalMap(unpinned.replace(topological_anchor=False)), route, per_step=(0.15, -0.1, 0.02))
     assert accepted(events) == [(6, 2, "centre-crosscheck"), (5, 1, "hindsight")]
-    events = drive(GlobalMap(FULL.replace(topological_anchor=False, drift_bound_sigmas=0.0)), route,
+    events = drive(GlobalMap(unpinned.replace(topological_anchor=False, drift_bound_sigmas=0.0)), route,
                    per_step=(0.15, -0.1, 0.02))
     assert accepted(events) == [(6, 2, "centre-crosscheck")]
 
@@ -407,7 +412,7 @@ def test_a_straight_piece_is_closed_by_the_drift_bound_only_while_the_pose_graph
     # decides. With odometry trusted to 5 cm a metre, 6 lies within 2 by far more than twice its
     # standard deviation along the piece; with 0.6 m a metre (a graph that cannot bound the drift)
     # the same match is refused, as verify_constrained alone refuses it.
-    unanchored = FULL.replace(topological_anchor=False)
+    unanchored = FULL.replace(topological_anchor=False, exit_pin_sigmas=0.0)
     gm = GlobalMap(unanchored)
     assert (6, 2, "centre-crosscheck") in accepted(drive(gm, LOOP, per_step=(0.15, -0.1, 0.02)))
     assert gm.alignments[(6, 2)].constraint < 0.01
@@ -416,3 +421,42 @@ def test_a_straight_piece_is_closed_by_the_drift_bound_only_while_the_pose_graph
     assert accepted(events) == [(5, 1, "centre-crosscheck")]
     assert any(isinstance(e, CycleRejected) and (e.asr, e.matches, e.reason) == (6, 2, "verification")
                for e in events)
+
+
+def test_a_straight_piece_is_placed_along_its_length_by_its_exits():
+    # The same route with only the exits to say where along the west piece 5 lies: its walls run
+    # north-south, its ends are exits (the corridor going on round the corners). Aligned by the
+    # walls alone it stays where 4 transitions of drift put it; the ends move it onto 1's, and the
+    # match is accepted at once, placed where 5 truly is.
+    route = [LOOP[3], LOOP[0], LOOP[1], LOOP[2], LOOP[3], LOOP[0]]
+    per_step = (0.15, -0.1, 0.02)
+    gm = GlobalMap(FULL.replace(topological_anchor=False, drift_bound_sigmas=0.0))
+    events = drive(gm, route, per_step=per_step)
+    assert accepted(events) == [(5, 1, "centre-crosscheck"), (6, 2, "centre-crosscheck")]
+    a = gm.alignments[(5, 1)]
+    assert a.constraint < 0.01 and a.pinned is not None
+    believed = compose(drift(4, per_step), route[4][1])
+    placed = compose(a.correction, believed)
+    unpin = (-a.pinned * math.cos(a.axis), -a.pinned * math.sin(a.axis), 0.0)
+    walls_only = compose(compose(unpin, a.correction), believed)
+    truth = route[4][1]
+    assert math.dist(placed[:2], truth[:2]) < 0.1
+    assert math.dist(walls_only[:2], truth[:2]) > 0.3
+
+
+def _door(x0: float, y: float = 0.0, width: float = 0.9) -> list:
+    return [[x0, y], [x0 + width, y]]
+
+
+def test_exits_pin_an_open_axis_only_when_one_shift_within_the_reach_explains_them():
+    axis = 0.0  # the open axis runs along x (a corridor along x, doorways in its south wall)
+    p = np.array([_door(0.3)])
+    q = np.array([_door(0.0), _door(4.0)])
+    assert exit_pin(p, q, axis, 0.2, 1.0) == pytest.approx((-0.3, 1))  # the door 4 m on is out of reach
+    assert exit_pin(p, q, axis, 0.2, 4.0) is None  # within reach of both doors: which one?
+    assert exit_pin(p, np.array([_door(0.0, y=0.5)]), axis, 0.2, 1.0) is None  # across the axis: not the same
+    assert exit_pin(p, np.array([_door(0.0, width=1.5)]), axis, 0.2, 1.0) is None  # another width
+    assert exit_pin(p, np.array([[[0.75, -0.45], [0.75, 0.45]]]), axis, 0.2, 1.0) is None  # crosswise
+    two = np.array([_door(0.3), _door(4.3)])
+    assert exit_pin(two, q, axis, 0.2, 1.0) == pytest.approx((-0.3, 2))  # both doors agree
+    assert exit_pin(p, np.zeros((0, 2, 2)), axis, 0.2, 1.0) is None
