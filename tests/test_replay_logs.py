@@ -43,6 +43,24 @@ def test_replay_of_a_real_log_keeps_cycle_precision(shared_data, log, truth, mod
 
 
 @pytest.mark.slow
+def test_intel_raw_keeps_its_precision_when_the_viewpoints_move(shared_data):
+    # Which scans become viewpoints decides every ASR, so one replay is one sample of the closures:
+    # the same log with the viewpoint spacing 2 cm either way prints their spread (README, "Cycle
+    # closing"), and none of the samples may close a false pair.
+    base = params_for_log(log_path("intel-raw-first5505.clf.gz"))
+    spread = []
+    for spacing in (0.23, 0.24, 0.25, 0.26, 0.27):
+        params = dataclasses.replace(base, view_spacing=spacing)
+        res = replay(log_path("intel-raw-first5505.clf.gz"), params=params,
+                     truth=log_path("intel-corrected.log.gz"))
+        ev = res.evaluation
+        spread.append(f"{spacing:.2f} m: {ev.true_positives} true / {ev.false_positives} false, "
+                      f"{ev.detected} of {ev.revisits} revisits")
+        assert ev.cycles == 0 or ev.precision >= 0.98, (spacing, ev.false_pairs)
+    print("\nintel raw, view_spacing " + "; ".join(spread))
+
+
+@pytest.mark.slow
 def test_intel_raw_replays_every_scan_and_prints_its_throughput(shared_data):
     # The throughput goal (500x real time) is a figure for README, not an assertion.
     res = replay(log_path("intel-raw-first5505.clf.gz"))
