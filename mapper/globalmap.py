@@ -336,9 +336,26 @@ class GlobalMap:
             self._verified(align, n, m, near=True)
             and align.constraint >= p.verify_min_constraint
             and align.inliers >= p.verify_near_min_inliers
+            and self._within_drift(align, n, m)
         ):
             return align
         return None
+
+    def _within_drift(self, a: Alignment, n: int, m: int) -> bool:
+        """``near_drift_sigmas``: the alignment moves n's centre (global frame) no farther than that
+        many of the pose graph's standard deviations of n relative to m, along the move
+        (:meth:`_axis_sigma`): a match the drift between them cannot explain is another place.
+        True when off, or when no chain of edges joins them."""
+        k = self.params.near_drift_sigmas
+        if k <= 0:
+            return True
+        asr = self.asrs[n]
+        c0, c1 = global_centre(asr), global_centre(asr, compose(a.correction, asr.origin))
+        move = math.hypot(c1[0] - c0[0], c1[1] - c0[1])
+        if move < 1e-9:
+            return True
+        sigma = self._axis_sigma(n, m, math.atan2(c1[1] - c0[1], c1[0] - c0[0]))
+        return sigma is None or move <= k * sigma
 
     def _align(self, n: int, m: int, gate: float = 1.0) -> Alignment | None:
         """Surface alignment of n onto m (see :meth:`_align_pair`); ``gate``: ICP's first

@@ -218,12 +218,25 @@ RETURN = [
 
 
 def test_a_revisit_just_outside_the_room_is_found_by_surface_alignment_within_the_search_radius():
+    # 0.9 m of drift a transition (of 1-2.5 m): far more than odometry trusted to 5 cm a metre allows, so
+    # the pose graph here is told to expect it (odometry_sigma_xy 0.5 m a metre).
     assert accepted(drive(GlobalMap(PAPER), RETURN, per_step=(0.9, 0.0, 0.0))) == []
-    gm = GlobalMap(FULL)
+    gm = GlobalMap(FULL.replace(odometry_sigma_xy=0.5))
     events = drive(gm, RETURN, per_step=(0.9, 0.0, 0.0))
     assert accepted(events) == [(3, 1, "aligned-crosscheck")]
     a = gm.alignments[(3, 1)]
     assert a.correction[0] == pytest.approx(-1.8, abs=0.1) and a.constraint > 0.2
+
+
+def test_an_aligned_revisit_the_drift_cannot_explain_is_refused():
+    # The same revisit with the default odometry trust: moving ASR 3 by 1.8 m after two transitions
+    # is many of the graph's standard deviations (near_drift_sigmas), so the alignment found a
+    # neighbouring place of like shape, not the drift; with the gate off it is accepted.
+    gm = GlobalMap(FULL)
+    assert accepted(drive(gm, RETURN, per_step=(0.9, 0.0, 0.0))) == []
+    assert gm.alignments[(3, 1)] is not None
+    off = GlobalMap(FULL.replace(near_drift_sigmas=0.0))
+    assert accepted(drive(off, RETURN, per_step=(0.9, 0.0, 0.0))) == [(3, 1, "aligned-crosscheck")]
 
 
 def test_a_corridor_just_outside_is_not_matched_by_alignment_alone():
