@@ -36,7 +36,7 @@ from collections.abc import Callable
 import numpy as np
 import shapely
 
-from mapper.cycles import centre_of
+from mapper.cycles import PARALLEL, centre_of
 from mapper.exits import closest_point
 from mapper.jit import kernel
 from mapper.params import MapperParams
@@ -44,7 +44,6 @@ from mapper.se2 import Pose, transform_points
 from mapper.types import ASR, Exit
 from mapper.view import View, valid_polygon
 
-_PARALLEL = math.cos(math.radians(20.0))
 _SAMPLES = np.linspace(0.1, 0.9, 5)  # fractions along an exit tested for being covered by surfaces
 
 
@@ -53,7 +52,7 @@ def _pairs_within(
 ) -> tuple[np.ndarray, ...]:
     """The (point, segment) pairs closer than ``tol`` (m): point and segment indices and distances
     (in no particular order). With the points' unit directions ``u`` (P, 2), only the pairs whose
-    direction is parallel to the segment's to within 20° (``_PARALLEL``).
+    direction is parallel to the segment's to within 20° (:data:`mapper.cycles.PARALLEL`).
 
     Candidates are the points inside each segment's bounding box grown by ``tol``: the points sorted
     by x, each box's x-range is two binary searches, and only the pairs in those ranges are tested
@@ -61,7 +60,7 @@ def _pairs_within(
     of an ASR's boundary and label store.
     """
     order = np.argsort(p[:, 0], kind="stable")
-    pu, cos_min = (_NO_DIRS, -1.0) if u is None else (np.ascontiguousarray(u[order], dtype=float), _PARALLEL)
+    pu, cos_min = (_NO_DIRS, -1.0) if u is None else (np.ascontiguousarray(u[order], dtype=float), PARALLEL)
     return _pairs_in_boxes(np.ascontiguousarray(p[order]), order, np.ascontiguousarray(seg, dtype=float), tol,
                            pu, cos_min)
 

@@ -19,7 +19,7 @@ from mapper.nearest import point_tree
 from mapper.se2 import Pose, compose, transform_points, wrap
 from mapper.types import ASR
 
-_PARALLEL = math.cos(math.radians(20.0))  # two directions within 20° of each other
+PARALLEL = math.cos(math.radians(20.0))  # |cos| of two directions within 20° of each other
 
 
 def global_polygon(asr: ASR, origin: Pose | None = None) -> shapely.Polygon:
@@ -231,7 +231,7 @@ def exit_pin(seg_p: np.ndarray, seg_q: np.ndarray, axis: float, tolerance: float
     off = seg_q.mean(axis=1)[None, :, :] - seg_p.mean(axis=1)[:, None, :]  # (P, Q, 2)
     along, across = off @ d, off @ normal
     cos = np.abs(vp @ vq.T) / np.maximum(np.outer(wp, wq), 1e-12)
-    alike = (cos >= _PARALLEL) & (np.abs(wp[:, None] - wq[None, :]) <= tolerance)
+    alike = (cos >= PARALLEL) & (np.abs(wp[:, None] - wq[None, :]) <= tolerance)
     pair = alike & (np.abs(across) <= tolerance) & (np.abs(along) <= reach)
     shifts = along[pair]
     if len(shifts) == 0:
