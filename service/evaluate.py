@@ -29,7 +29,7 @@ from __future__ import annotations
 import bisect
 import dataclasses
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -170,6 +170,8 @@ class Evaluation:
     """m, one per revisit: how far the dead-reckoned ASR frames place the revisiting ASR from the
     earlier one, against the truth (the smallest over the earlier ASRs it overlaps). The cycle check
     compares ASRs placed this far off: beyond an ASR's size, no centre crosscheck can pass."""
+    true_pairs: tuple[tuple[int, int, float], ...] = ()
+    """(ASR, the earlier ASR it matched, the decision's time in s) of each true positive."""
 
     @property
     def precision(self) -> float:
@@ -196,6 +198,40 @@ def _rigid_error(est: np.ndarray, true: np.ndarray) -> tuple[float, float]:
     return pos, float(np.sqrt(np.mean(dth**2)))
 
 
+def true_outlines(asrs: list[dict], truth: Track, odometry: Track
+                  ) -> tuple[dict[int, Pose], dict[int, shapely.Polygon], dict[int, shapely.Point]]:
+    """Each ASR of a map document's ``asrs`` placed by the truth: its true frame (the true pose at its
+    ``created`` time), its boundary polygon and its centre point, all in the truth's frame (m, rad)."""
+    frames = {a["id"]: true_pose(truth, odometry, a["created"]) for a in asrs}
+    polys = {
+        a["id"]: shapely.Polygon(transform_points(frames[a["id"]], np.array(a["boundary"], dtype=float)))
+        for a in asrs
+    }
+    for k, g in polys.items():
+        if not g.is_valid:
+            polys[k] = g.buffer(0)
+    centres = {
+        a["id"]: shapely.Point(transform_points(frames[a["id"]], np.array(a["centre"], dtype=float))[0])
+        for a in asrs
+    }
+    return frames, polys, centres
+
+
+def places(doc: dict) -> Callable[[int], set[int]]:
+    """``same_place(j)``: ASR ``j`` of the map document with the ASRs it duplicates and those that
+    duplicate it (the map's own record of one space seen twice)."""
+    dup_of = {a["id"]: a["duplicate_of"] for a in doc["asrs"] if a.get("duplicate_of") is not None}
+
+    def same_place(j: int) -> set[int]:
+        out = {j} | {k for k, m in dup_of.items() if m == j}
+        while j in dup_of:
+            j = dup_of[j]
+            out.add(j)
+        return out
+
+    return same_place
+
+
 def evaluate(
     doc: dict,
     truth: Track,
@@ -214,30 +250,12 @@ def evaluate(
     asrs = [a for a in doc["asrs"] if t0 - margin <= a["created"] <= t1 + margin]
     ids = [a["id"] for a in asrs]
     order = {k: n for n, k in enumerate(ids)}
-    frames = {a["id"]: true_pose(truth, odometry, a["created"]) for a in asrs}
-    polys = {
-        a["id"]: shapely.Polygon(transform_points(frames[a["id"]], np.array(a["boundary"], dtype=float)))
-        for a in asrs
-    }
-    for k, g in polys.items():
-        if not g.is_valid:
-            polys[k] = g.buffer(0)
-    centres = {
-        a["id"]: shapely.Point(transform_points(frames[a["id"]], np.array(a["centre"], dtype=float))[0])
-        for a in asrs
-    }
+    frames, polys, centres = true_outlines(asrs, truth, odometry)
 
     def overlap(i: int, j: int) -> bool:
         return polys[j].covers(centres[i]) and polys[i].covers(centres[j])
 
-    dup_of = {a["id"]: a["duplicate_of"] for a in doc["asrs"] if a.get("duplicate_of") is not None}
-
-    def same_place(j: int) -> set[int]:
-        out = {j} | {k for k, m in dup_of.items() if m == j}
-        while j in dup_of:
-            j = dup_of[j]
-            out.add(j)
-        return out
+    same_place = places(doc)
 
     accepted = [
         c for c in doc.get("cycles", []) if c["accepted"] and c["asr"] in order and c["matches"] in order
@@ -284,6 +302,7 @@ def evaluate(
         heading_error_after=ha,
         false_pairs=fp,
         revisit_drift=tuple(drift),
+        true_pairs=tuple((c["asr"], c["matches"], float(c["time"])) for c in tp),
     )
 
 

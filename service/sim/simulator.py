@@ -44,6 +44,7 @@ from pioneer.physics import DiffDrive, OdometryError
 from service.config import LASER_BAUDS, PIONEER_BAUDS
 from service.evaluate import Track, evaluate
 from service.explore import Command, ExploreParams, Explorer, MapView, links_of, scan_points
+from service.sim import loops
 from service.sim.physics import Body
 from service.sim.raycast import LMS_MAX_RANGE, RayCaster
 from service.sim.world import World
@@ -125,13 +126,15 @@ class SimRobot:
 
 class LockedMapper:
     """The mapper behind a lock, so the explorer reads a consistent state while the mapper thread
-    writes. Records what the summary needs: every event, and which ASR each was entered from."""
+    writes. Records what the summary needs: every event, which ASR each was entered from, and
+    every crossing ``(t, from ASR, to ASR)`` (the mapper's clock, s)."""
 
     def __init__(self, mapper: Any) -> None:
         self.mapper = mapper
         self.lock = threading.RLock()
         self.events: list[Any] = []
         self.entered_from: dict[int, int | None] = {}
+        self.crossings: list[tuple[float, int, int]] = []
         self._links: list = []
         self._dirty = True
 
@@ -152,6 +155,8 @@ class LockedMapper:
         for e in events:
             if getattr(e, "kind", "") == "asr_created":
                 self.entered_from[int(e.asr)] = getattr(e, "entered_from", None)
+            elif getattr(e, "kind", "") == "exit_crossed":
+                self.crossings.append((float(e.t), int(e.from_asr), int(e.to_asr)))
             if getattr(e, "kind", "") != "asr_updated":
                 self.events.append(e)
         if events:
@@ -225,6 +230,11 @@ class Summary:
     scans: int = 0
     scans_dropped: int = 0
     false_pairs: tuple = ()
+    #: The world's loops (:mod:`service.sim.loops`): its holes, the independent loops the robot's
+    #: true path drove, and how many of those the map's true cycle closures closed.
+    holes: int = 0
+    loops_driven: int = 0
+    loops_closed: int = 0
     #: Where the robot ended wedged (world frame, m), if it did: in its last ``WEDGED_TIME`` s it
     #: moved less than ``WEDGED_DISTANCE`` and touched something. An exploration that ends so has
     #: given up its last goals because the robot could not move, not because nothing was left.
@@ -244,6 +254,8 @@ class Summary:
             f"cycles detected {self.cycles}: {self.true_cycles} true, {self.false_cycles} false"
             + (f" {list(self.false_pairs)}" if self.false_pairs else ""),
             f"revisits {self.revisits}, missed {self.revisits_missed}",
+            f"loops driven {self.loops_driven} (the world has {self.holes} holes), "
+            f"closed by the map {self.loops_closed}",
             f"distance driven {self.distance:.1f} m, contacts {self.contacts}, stuck {self.stuck}",
             f"regions entered {len(self.regions_visited)}/{regions}"
             + (f" (missed: {', '.join(self.regions_missed)})" if self.regions_missed else ""),
@@ -274,8 +286,11 @@ def _wedged(truth: Track, contacts: list, end: float) -> tuple[float, float] | N
 
 
 def summarise(world: World, doc: dict, robot: SimRobot, odometry: Track, entered_from: dict,
-              explorer: Explorer | None, sim_time: float, wall_time: float, finished: bool) -> Summary:
-    """Score the map document against the robot's ground truth (:func:`service.evaluate.evaluate`)."""
+              explorer: Explorer | None, sim_time: float, wall_time: float, finished: bool,
+              crossings: list[tuple[float, int, int]] = ()) -> Summary:
+    """Score the map document against the robot's ground truth (:func:`service.evaluate.evaluate`,
+    :mod:`service.sim.loops`); ``crossings``: the mapper's exit crossings on the simulated clock
+    (:attr:`LockedMapper.crossings`)."""
     with robot._lock:
         truth = Track(robot.truth.t, robot.truth.poses)
     asrs = doc.get("asrs", [])
@@ -286,6 +301,12 @@ def summarise(world: World, doc: dict, robot: SimRobot, odometry: Track, entered
     else:
         cycles = tp = fp = rev = det = 0
         pairs = ()
+    holes = loops.world_holes(world)
+    driven = loops.returns(np.array([p[:2] for p in truth.poses], dtype=float).reshape(-1, 2), holes)
+    closed = loops.enclosed(doc, truth, odometry, holes) if len(driven) else driven
+    if tp and len(driven):
+        closed = np.vstack([closed, loops.closures(doc, ev.true_pairs, list(crossings), truth, holes)])
+    loops_driven, loops_closed = loops.loops_closed(driven, closed)
     exits = [e for a in asrs for e in a.get("exits", [])]
     visited = {world.region_of(p[0], p[1]) for p in truth.poses[:: max(1, len(truth) // 5000)]}
     visited |= {world.region_of(*truth.poses[-1][:2])}
@@ -299,6 +320,7 @@ def summarise(world: World, doc: dict, robot: SimRobot, odometry: Track, entered
         regions_visited=[n for n in names if n in visited],
         regions_missed=[n for n in names if n not in visited],
         false_pairs=pairs,
+        holes=len(holes), loops_driven=loops_driven, loops_closed=loops_closed,
         wedged=_wedged(truth, robot.body.contacts, sim_time),
     )
 
@@ -374,7 +396,7 @@ class DirectSim:
         self.mapper.flush()
         doc = map_document(self.mapper.mapper)
         s = summarise(self.world, doc, self.robot, self.odometry, self.mapper.entered_from, self.explorer,
-                      self.t, time.perf_counter() - wall0, finished)
+                      self.t, time.perf_counter() - wall0, finished, self.mapper.crossings)
         s.scans = self.scans
         self.document = doc
         return s
@@ -580,7 +602,8 @@ class StackSim:
         doc_sim = _retime(doc, to_sim)
         s = summarise(self.world, doc_sim, self.robot, odo_sim,
                       self.mapper.entered_from if self.mapper else {}, self.explorer, self.sim_clock(),
-                      time.monotonic() - self.devices.wall0, finished)
+                      time.monotonic() - self.devices.wall0, finished,
+                      [(to_sim(t), a, b) for t, a, b in self.mapper.crossings] if self.mapper else [])
         w = service.worker
         if w is not None:
             s.scans = w.counters.get("scans_mapped", 0)

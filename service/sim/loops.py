@@ -1,0 +1,176 @@
+"""The world's loops, from ground truth: which ones the robot drove round and which ones its map closed.
+
+The world's **holes** are the obstacles with free space all the way round them (a table island
+with its chairs, a stretch of wall between two doorways), found by inflating everything solid by
+the robot's radius (:func:`world_holes`). A closed path is counted by its **winding vector**: how
+many times it turns round each hole. Going once round the corridor of ``lab`` turns round every
+hole inside it; going round a table island turns round that one alone.
+
+- The **loops driven**: the number of independent winding vectors among the loops the robot's true
+  path closed by coming back near where it had been (:func:`returns`), i.e. the rank of the cycle
+  space of the ground it covered, counted in holes.
+- The **loops closed**: how many of those the map's true cycle closures closed (:func:`closures`:
+  each closure closes the true path between the robot's last time in the earlier ASR and its
+  return there); the dimension of the intersection of the two spaces (:func:`loops_closed`).
+
+"Every cycle closed" (the goal of exploring ``lab``) is then every loop driven also closed: a
+closure through every loop the robot drove, so that, with the map's transitions, each of its
+cycles is a sum of closed ones. It does not ask that every revisit be recognised (the revisits
+missed count that). Everything here is in the world frame (the truth's): metres and radians.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+
+import numpy as np
+import shapely
+from shapely.ops import polylabel
+
+from service.evaluate import Track, places, true_outlines
+from service.sim.physics import P2DX_RADIUS
+from service.sim.world import World
+
+
+def world_holes(world: World, clearance: float = P2DX_RADIUS) -> list[shapely.Polygon]:
+    """The holes (world frame) of the free space the robot's centre can reach from the world's start:
+    the obstacles inflated by ``clearance`` (m), in a stable order (by x, then y, of a point inside)."""
+    x0, y0, x1, y1 = world.bounds
+    free = shapely.box(x0 - 1.0, y0 - 1.0, x1 + 1.0, y1 + 1.0).difference(
+        world.obstacles.buffer(clearance, quad_segs=4))
+    start = shapely.Point(world.start[0], world.start[1])
+    reach = [g for g in getattr(free, "geoms", [free]) if g.covers(start)]
+    if not reach:
+        return []
+    holes = [shapely.Polygon(r) for r in reach[0].interiors]
+    return sorted(holes, key=_centre)
+
+
+def _centre(hole: shapely.Polygon) -> tuple[float, float]:
+    """The point deepest inside the hole (m): the path passes no nearer to it than the hole's
+    inscribed radius (at least the clearance, for a hole round a thin wall)."""
+    c = polylabel(hole, tolerance=0.01)
+    return float(c.x), float(c.y)
+
+
+def _turns(xy: np.ndarray, centre: tuple[float, float]) -> np.ndarray:
+    """rad: the path's unwrapped bearing from ``centre`` at each point."""
+    return np.unwrap(np.arctan2(xy[:, 1] - centre[1], xy[:, 0] - centre[0]))
+
+
+def winding(xy: np.ndarray, centre: tuple[float, float]) -> int:
+    """How many times the closed path ``xy`` (N, 2), last point joined to the first, turns
+    counter-clockwise round ``centre`` (negative: clockwise)."""
+    if len(xy) < 3:
+        return 0
+    a = _turns(np.vstack([xy, xy[:1]]), centre)
+    return round((a[-1] - a[0]) / (2.0 * math.pi))
+
+
+def _resample(xy: np.ndarray, step: float) -> np.ndarray:
+    """The path's points at least ``step`` (m) apart (first and last kept)."""
+    if len(xy) < 2:
+        return xy
+    keep = [0]
+    last = xy[0]
+    for i in range(1, len(xy)):
+        if math.hypot(xy[i, 0] - last[0], xy[i, 1] - last[1]) >= step:
+            keep.append(i)
+            last = xy[i]
+    if keep[-1] != len(xy) - 1:
+        keep.append(len(xy) - 1)
+    return xy[keep]
+
+
+def _independent(vectors: np.ndarray) -> int:
+    """How many of the winding vectors (K, holes) are linearly independent."""
+    return int(np.linalg.matrix_rank(vectors.astype(float))) if vectors.size else 0
+
+
+def returns(xy: np.ndarray, holes: list[shapely.Polygon], reach: float = 0.25) -> np.ndarray:
+    """The winding vectors (K, len(holes)) of the loops the path ``xy`` (N, 2; world frame, m)
+    closed by coming back near where it had been: for each point and each of the cells of side
+    ``reach`` round it (so at most 2.83 ``reach`` away, 0.71 m), the turns round each hole of the
+    path from the first point in that cell to this one, closed by the short step back. Every loop
+    of the path's neighbourhood is a sum of these.
+
+    A turn is counted from the hole's deepest point. The robot keeps its radius from every
+    obstacle, so a step that short cannot pass a hole and sweeps less than 0.62π round it: the
+    path's change of bearing, divided by 2π and rounded, is the loop's winding number."""
+    xy = _resample(np.asarray(xy, dtype=float), 0.05)
+    if len(xy) < 3 or not holes:
+        return np.zeros((0, len(holes)), dtype=np.int64)
+    turns = np.column_stack([_turns(xy, _centre(h)) for h in holes])
+    cells = np.floor(xy / reach).astype(np.int64)
+    first: dict[tuple[int, int], int] = {}
+    for n, (i, j) in enumerate(map(tuple, cells)):
+        first.setdefault((i, j), n)
+    pairs = [(first[(i + di, j + dj)], n)
+             for n, (i, j) in enumerate(map(tuple, cells))
+             for di in (-1, 0, 1) for dj in (-1, 0, 1)
+             if first.get((i + di, j + dj), n) < n]
+    if not pairs:
+        return np.zeros((0, len(holes)), dtype=np.int64)
+    a, b = np.array(pairs).T
+    w = np.rint((turns[b] - turns[a]) / (2.0 * math.pi)).astype(np.int64)
+    w = w[np.any(w != 0, axis=1)]
+    return np.unique(w, axis=0) if len(w) else w
+
+
+def closures(doc: dict, pairs: tuple[tuple[int, int, float], ...], crossings: list[tuple[float, int, int]],
+             truth: Track, holes: list[shapely.Polygon]) -> np.ndarray:
+    """The winding vectors (K, len(holes)) of the loops the true cycle closures of the map document
+    ``doc`` closed: for each, the true path from the robot's last crossing out of the earlier ASR
+    (or an ASR the map holds for the same place) to its crossing into the new one, closed by a
+    straight step across the earlier ASR's space.
+
+    ``pairs``: (new ASR, earlier ASR, time) of each true closure
+    (:attr:`service.evaluate.Evaluation.true_pairs`); ``crossings``: ``(t, from ASR, to ASR)`` of
+    every exit crossing, on the truth's clock (:attr:`service.sim.simulator.LockedMapper.crossings`);
+    ``truth``: the robot's true poses (world frame)."""
+    out: list[list[int]] = []
+    if not pairs or len(truth) < 3 or not holes:
+        return np.zeros((0, len(holes)), dtype=np.int64)
+    same_place = places(doc)
+    xy = np.array([p[:2] for p in truth.poses], dtype=float)
+    centres = [_centre(h) for h in holes]
+    for new, earlier, _ in pairs:
+        into = [t for t, _, to in crossings if to == new]
+        if not into:
+            continue
+        here = same_place(earlier)
+        left = [t for t, src, _ in crossings if src in here and t < into[0]]
+        if not left:
+            continue
+        path = xy[bisect.bisect_left(truth.t, left[-1]): bisect.bisect_right(truth.t, into[0])]
+        out.append([winding(path, c) for c in centres])
+    w = np.array(out, dtype=np.int64).reshape(-1, len(holes))
+    w = w[np.any(w != 0, axis=1)]
+    return np.unique(w, axis=0) if len(w) else w
+
+
+def enclosed(doc: dict, truth: Track, odometry: Track, holes: list[shapely.Polygon],
+             clearance: float = P2DX_RADIUS) -> np.ndarray:
+    """The unit winding vectors (K, len(holes)) of the holes some ASR of the map document ``doc``
+    surrounds: a table island whose solid part (the hole less ``clearance``, m) lies inside one
+    ASR's true outline. A loop round it stays in one ASR, whose metric map already holds it: there
+    is no cycle of ASRs to close."""
+    asrs = doc.get("asrs", [])
+    if not asrs or not holes or len(truth) < 2:
+        return np.zeros((0, len(holes)), dtype=np.int64)
+    _, outline, _ = true_outlines(asrs, truth, odometry)
+    rings = [shapely.Polygon(g.exterior) for g in outline.values() if isinstance(g, shapely.Polygon)]
+    rings += [shapely.Polygon(p.exterior) for g in outline.values()
+              if isinstance(g, shapely.MultiPolygon) for p in g.geoms]
+    solid = [hole.buffer(-0.9 * clearance) for hole in holes]
+    inside = [h for h, core in enumerate(solid) if not core.is_empty and any(r.covers(core) for r in rings)]
+    return np.eye(len(holes), dtype=np.int64)[inside]
+
+
+def loops_closed(driven: np.ndarray, closed: np.ndarray) -> tuple[int, int]:
+    """(independent loops driven, how many of them the closures closed): the dimension of the space
+    the path's loops span, and of its intersection with the space the closures' loops span."""
+    d, c = _independent(driven), _independent(closed)
+    both = _independent(np.vstack([driven, closed])) if len(driven) and len(closed) else d + c
+    return d, d + c - both
