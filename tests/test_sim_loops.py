@@ -96,25 +96,28 @@ def test_a_closure_closes_the_loop_the_robot_drove_between_leaving_and_reenterin
     doc = {"asrs": [_asr(truth, 1, 0.0, corner), _asr(truth, 2, leave, (10.6, 2.1, 14.2, 3.3)),
                     _asr(truth, 3, back, corner)]}
     crossings = [(leave, 1, 2), (back, 2, 3)]
-    closed = closures(doc, ((3, 1, back),), crossings, truth, HOLES)
+    closed = closures(doc, ((3, 1, back),), crossings, truth, truth, HOLES)
     driven = returns(ring, HOLES)
     assert [list(v) for v in closed] == [list(driven[0])]
     assert loops_closed(driven, closed) == (1, 1)
     # Out of the space and straight back in: the closure closes no loop.
-    assert len(closures(doc, ((3, 1, back),), [(back - 1.0, 1, 2), (back, 2, 3)], truth, HOLES)) == 0
+    assert len(closures(doc, ((3, 1, back),), [(back - 1.0, 1, 2), (back, 2, 3)], truth, truth, HOLES)) == 0
     # Two loops driven, one closed.
     both = np.vstack([driven, returns(_ring(3.2, 8.5, 6.8, 11.9), HOLES)])
     assert loops_closed(both, closed) == (2, 1)
 
 
-def test_an_island_inside_one_asr_needs_no_closure_but_half_inside_is_not_enough():
+def test_an_island_inside_one_asr_or_two_joined_ones_needs_no_closure():
     ring = _ring(9.9, 2.6, 13.7, 6.4)
     truth = _ring_truth(ring)
     room = {"asrs": [_asr(truth, 1, 0.0, (9.5, 2.2, 14.2, 6.9))]}
     island = np.zeros((1, len(HOLES)), dtype=int)
     island[0, ISLAND_EAST] = 1
-    assert enclosed(room, truth, truth, HOLES).tolist() == island.tolist()
-    assert loops_closed(returns(ring, HOLES), enclosed(room, truth, truth, HOLES)) == (1, 1)
-    # An outline over half the island does not hold a loop round it.
-    half = {"asrs": [_asr(truth, 1, 0.0, (9.5, 2.2, 11.8, 6.9))]}
-    assert len(enclosed(half, truth, truth, HOLES)) == 0
+    assert enclosed(room, [], truth, truth, HOLES).tolist() == island.tolist()
+    assert loops_closed(returns(ring, HOLES), enclosed(room, [], truth, truth, HOLES)) == (1, 1)
+    # Outlines over half the island each, not joined, do not hold a loop round it.
+    halves = {"asrs": [_asr(truth, 1, 0.0, (9.5, 2.2, 11.8, 6.9)),
+                       _asr(truth, 2, 10.0, (11.8, 2.2, 14.2, 6.9))]}
+    assert len(enclosed(halves, [], truth, truth, HOLES)) == 0
+    # The room split in two, the halves joined by one transition: one rigid map round the island.
+    assert enclosed(halves, [(10.0, 1, 2)], truth, truth, HOLES).tolist() == island.tolist()

@@ -9,9 +9,13 @@ hole inside it; going round a table island turns round that one alone.
 - The **loops driven**: the number of independent winding vectors among the loops the robot's true
   path closed by coming back near where it had been (:func:`returns`), i.e. the rank of the cycle
   space of the ground it covered, counted in holes.
-- The **loops closed**: how many of those the map's true cycle closures closed (:func:`closures`:
-  each closure closes the true path between the robot's last time in the earlier ASR and its
-  return there); the dimension of the intersection of the two spaces (:func:`loops_closed`).
+- The **loops closed**: how many of those the map closed (the dimension of the intersection of
+  the two spaces, :func:`loops_closed`). The map closes a loop when it knows the robot is back in a
+  space it left (:func:`closures`: a re-entry through a known transition, truly into that ASR, or a
+  true cycle closure of the new ASR with the earlier one), the loop being the true path between
+  the robot's last crossing out of the space and its crossing back in; and it holds a loop without
+  any cycle when one ASR, or two joined by one transition, surround the hole (:func:`enclosed`: a
+  table island in a room).
 
 "Every cycle closed" (the goal of exploring ``lab``) is then every loop driven also closed: a
 closure through every loop the robot drove, so that, with the map's transitions, each of its
@@ -119,52 +123,68 @@ def returns(xy: np.ndarray, holes: list[shapely.Polygon], reach: float = 0.25) -
 
 
 def closures(doc: dict, pairs: tuple[tuple[int, int, float], ...], crossings: list[tuple[float, int, int]],
-             truth: Track, holes: list[shapely.Polygon]) -> np.ndarray:
-    """The winding vectors (K, len(holes)) of the loops the true cycle closures of the map document
-    ``doc`` closed: for each, the true path from the robot's last crossing out of the earlier ASR
-    (or an ASR the map holds for the same place) to its crossing into the new one, closed by a
-    straight step across the earlier ASR's space.
+             truth: Track, odometry: Track, holes: list[shapely.Polygon], slack: float = 0.5) -> np.ndarray:
+    """The winding vectors (K, len(holes)) of the loops the map closed: each time it knew the robot
+    was back in a space it had left, the true path from its last crossing out of that space to its
+    crossing back in, closed by a straight step across the space. It knew so
+    - when it re-entered a known ASR through a known transition, and the robot truly was inside
+      that ASR's true outline (within ``slack``, m) on crossing in: a wrong re-entry closes nothing;
+    - when a true cycle closure matched the new ASR the robot crossed into with an earlier one.
+    A space is an ASR with those the map holds for the same place (duplicates).
 
     ``pairs``: (new ASR, earlier ASR, time) of each true closure
     (:attr:`service.evaluate.Evaluation.true_pairs`); ``crossings``: ``(t, from ASR, to ASR)`` of
     every exit crossing, on the truth's clock (:attr:`service.sim.simulator.LockedMapper.crossings`);
-    ``truth``: the robot's true poses (world frame)."""
-    out: list[list[int]] = []
-    if not pairs or len(truth) < 3 or not holes:
+    ``truth``: the robot's true poses (world frame); ``odometry``: the odometry the mapper was
+    given, to place each ASR by the truth."""
+    if len(truth) < 3 or not holes or not crossings:
         return np.zeros((0, len(holes)), dtype=np.int64)
     same_place = places(doc)
+    asrs = {a["id"]: a for a in doc.get("asrs", [])}
+    _, outline, _ = true_outlines(list(asrs.values()), truth, odometry)
     xy = np.array([p[:2] for p in truth.poses], dtype=float)
+    back: list[tuple[float, int]] = []  # (crossing in, the space's ASR)
+    first_in: dict[int, float] = {}
+    for t, _, dst in crossings:
+        if dst in first_in and dst in outline:
+            p = truth.at(t)
+            if shapely.distance(outline[dst], shapely.Point(p[0], p[1])) <= slack:
+                back.append((t, dst))
+        first_in.setdefault(dst, t)
+    back += [(first_in[new], earlier) for new, earlier, _ in pairs if new in first_in]
+    out: list[list[int]] = []
     centres = [_centre(h) for h in holes]
-    for new, earlier, _ in pairs:
-        into = [t for t, _, to in crossings if to == new]
-        if not into:
-            continue
-        here = same_place(earlier)
-        left = [t for t, src, _ in crossings if src in here and t < into[0]]
+    for t_in, place in back:
+        here = same_place(place)
+        left = [t for t, src, _ in crossings if src in here and t < t_in]
         if not left:
             continue
-        path = xy[bisect.bisect_left(truth.t, left[-1]): bisect.bisect_right(truth.t, into[0])]
+        path = xy[bisect.bisect_left(truth.t, left[-1]): bisect.bisect_right(truth.t, t_in)]
         out.append([winding(path, c) for c in centres])
     w = np.array(out, dtype=np.int64).reshape(-1, len(holes))
     w = w[np.any(w != 0, axis=1)]
     return np.unique(w, axis=0) if len(w) else w
 
 
-def enclosed(doc: dict, truth: Track, odometry: Track, holes: list[shapely.Polygon],
-             clearance: float = P2DX_RADIUS) -> np.ndarray:
-    """The unit winding vectors (K, len(holes)) of the holes some ASR of the map document ``doc``
-    surrounds: a table island whose solid part (the hole less ``clearance``, m) lies inside one
-    ASR's true outline. A loop round it stays in one ASR, whose metric map already holds it: there
-    is no cycle of ASRs to close."""
+def enclosed(doc: dict, crossings: list[tuple[float, int, int]], truth: Track, odometry: Track,
+             holes: list[shapely.Polygon], clearance: float = P2DX_RADIUS) -> np.ndarray:
+    """The unit winding vectors (K, len(holes)) of the holes the map surrounds without a cycle: a
+    table island whose solid part (the hole less ``clearance``, m) lies inside one ASR's true
+    outline, or inside two ASRs joined by one transition (``crossings``, as for :func:`closures`),
+    the room round a table split in two. A loop round it needs no cycle of ASRs: one ASR's metric
+    map, or two joined rigidly, already hold it."""
     asrs = doc.get("asrs", [])
     if not asrs or not holes or len(truth) < 2:
         return np.zeros((0, len(holes)), dtype=np.int64)
     _, outline, _ = true_outlines(asrs, truth, odometry)
-    rings = [shapely.Polygon(g.exterior) for g in outline.values() if isinstance(g, shapely.Polygon)]
-    rings += [shapely.Polygon(p.exterior) for g in outline.values()
-              if isinstance(g, shapely.MultiPolygon) for p in g.geoms]
+    filled = {k: shapely.union_all([shapely.Polygon(p.exterior) for p in getattr(g, "geoms", [g])
+                                    if isinstance(p, shapely.Polygon) and not p.is_empty])
+              for k, g in outline.items()}
+    spaces = list(filled.values())
+    joined = {tuple(sorted((a, b))) for _, a, b in crossings if a != b and a in filled and b in filled}
+    spaces += [shapely.union(filled[a], filled[b]) for a, b in joined]
     solid = [hole.buffer(-0.9 * clearance) for hole in holes]
-    inside = [h for h, core in enumerate(solid) if not core.is_empty and any(r.covers(core) for r in rings)]
+    inside = [h for h, core in enumerate(solid) if not core.is_empty and any(g.covers(core) for g in spaces)]
     return np.eye(len(holes), dtype=np.int64)[inside]
 
 

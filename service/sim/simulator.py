@@ -303,9 +303,11 @@ def summarise(world: World, doc: dict, robot: SimRobot, odometry: Track, entered
         pairs = ()
     holes = loops.world_holes(world)
     driven = loops.returns(np.array([p[:2] for p in truth.poses], dtype=float).reshape(-1, 2), holes)
-    closed = loops.enclosed(doc, truth, odometry, holes) if len(driven) else driven
-    if tp and len(driven):
-        closed = np.vstack([closed, loops.closures(doc, ev.true_pairs, list(crossings), truth, holes)])
+    closed = driven[:0]
+    if len(driven):
+        closed = np.vstack([loops.enclosed(doc, list(crossings), truth, odometry, holes),
+                            loops.closures(doc, ev.true_pairs if tp else (), list(crossings), truth, odometry,
+                                           holes)])
     loops_driven, loops_closed = loops.loops_closed(driven, closed)
     exits = [e for a in asrs for e in a.get("exits", [])]
     visited = {world.region_of(p[0], p[1]) for p in truth.poses[:: max(1, len(truth) // 5000)]}
