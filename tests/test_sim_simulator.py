@@ -206,3 +206,16 @@ def test_a_run_that_ends_with_the_robot_wedged_says_so():
     assert _wedged(Track(t, poses), [], 169.0) is None  # standing still, touching nothing: not wedged
     assert _wedged(Track(t, poses), touching, 110.0) is None  # still moving within the window
     assert _wedged(Track(t[:10], poses[:10]), touching, 9.0) is None  # shorter than the window
+
+
+def test_an_exploration_that_gave_exits_up_says_how_many():
+    from service.sim.simulator import Summary
+
+    s = Summary(world="lab", sim_time=100.0, wall_time=10.0, finished=True, asrs=3, exits=9,
+                exits_unexplored=4, cycles=0, true_cycles=0, false_cycles=0, revisits=0,
+                revisits_missed=0, distance=10.0, contacts=0, stuck=2, regions_visited=["lab"],
+                regions_missed=[], exits_given_up=2)
+    assert s.lines()[0].startswith("world lab: exploration complete (2 exits given up) after 100 s")
+    assert "(10.0x real time)" in s.lines()[0]
+    s.exits_given_up = 0
+    assert s.lines()[0].startswith("world lab: exploration complete after 100 s")

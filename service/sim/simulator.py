@@ -230,6 +230,10 @@ class Summary:
     scans: int = 0
     scans_dropped: int = 0
     false_pairs: tuple = ()
+    #: Exits the explorer tried and gave up in its last round (stuck, blocked, leading back), left
+    #: unexplored when it declared exploration complete: "complete" then means nothing was left
+    #: that it could reach, not that nothing was left.
+    exits_given_up: int = 0
     #: The world's loops (:mod:`service.sim.loops`): its holes, the independent loops the robot's
     #: true path drove, and how many of those the map's true cycle closures closed.
     holes: int = 0
@@ -247,7 +251,8 @@ class Summary:
     def lines(self) -> list[str]:
         regions = len(self.regions_visited) + len(self.regions_missed)
         out = [
-            f"world {self.world}: {'exploration complete' if self.finished else 'stopped before the end'} "
+            f"world {self.world}: {'exploration complete' if self.finished else 'stopped before the end'}"
+            + (f" ({self.exits_given_up} exits given up)" if self.exits_given_up else "") + " "
             f"after {self.sim_time:.0f} s simulated in {self.wall_time:.0f} s "
             f"({self.realtime_factor:.1f}x real time)",
             f"ASRs {self.asrs}, exits {self.exits} ({self.exits_unexplored} unexplored)",
@@ -319,6 +324,7 @@ def summarise(world: World, doc: dict, robot: SimRobot, odometry: Track, entered
         cycles=cycles, true_cycles=tp, false_cycles=fp, revisits=rev, revisits_missed=rev - det,
         distance=robot.body.distance, contacts=len(robot.body.contacts),
         stuck=explorer.counts["stuck"] if explorer else 0,
+        exits_given_up=len(explorer.planner.memory.failed_exits) if explorer else 0,
         regions_visited=[n for n in names if n in visited],
         regions_missed=[n for n in names if n not in visited],
         false_pairs=pairs,
