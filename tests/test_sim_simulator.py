@@ -85,6 +85,7 @@ def test_asrmap_simulate_direct_writes_the_map_and_a_picture(tmp_path, capsys):
     assert json.loads(doc.read_text())["schema"] == "asrmap/map/1"
     assert svg.read_text().lstrip().startswith("<")
     assert "world aliasing" in out and "cycles detected" in out
+    assert "loops driven 0 (the world has 4 holes), closed by the map 0" in out  # 20 s: no loop yet
 
 
 def test_a_bad_world_is_one_line_on_stderr(tmp_path, capsys):
