@@ -20,7 +20,8 @@ hole inside it; going round a table island turns round that one alone.
 "Every cycle closed" (the goal of exploring ``lab``) is then every loop driven also closed: a
 closure through every loop the robot drove, so that, with the map's transitions, each of its
 cycles is a sum of closed ones. It does not ask that every revisit be recognised (the revisits
-missed count that). Everything here is in the world frame (the truth's): metres and radians.
+missed count that). :func:`count` gives the three figures of a run (the simulation summary's).
+Everything here is in the world frame (the truth's): metres and radians.
 """
 
 from __future__ import annotations
@@ -87,6 +88,17 @@ def _resample(xy: np.ndarray, step: float) -> np.ndarray:
     return xy[keep]
 
 
+def _none(holes: list[shapely.Polygon]) -> np.ndarray:
+    """No winding vectors: (0, len(holes))."""
+    return np.zeros((0, len(holes)), dtype=np.int64)
+
+
+def _distinct(w: np.ndarray) -> np.ndarray:
+    """The distinct winding vectors of ``w`` (K, holes) that turn round something."""
+    w = w[np.any(w != 0, axis=1)]
+    return np.unique(w, axis=0) if len(w) else w
+
+
 def _independent(vectors: np.ndarray) -> int:
     """How many of the winding vectors (K, holes) are linearly independent."""
     return int(np.linalg.matrix_rank(vectors.astype(float))) if vectors.size else 0
@@ -104,7 +116,7 @@ def returns(xy: np.ndarray, holes: list[shapely.Polygon], reach: float = 0.25) -
     path's change of bearing, divided by 2π and rounded, is the loop's winding number."""
     xy = _resample(np.asarray(xy, dtype=float), 0.05)
     if len(xy) < 3 or not holes:
-        return np.zeros((0, len(holes)), dtype=np.int64)
+        return _none(holes)
     turns = np.column_stack([_turns(xy, _centre(h)) for h in holes])
     cells = np.floor(xy / reach).astype(np.int64)
     first: dict[tuple[int, int], int] = {}
@@ -115,15 +127,14 @@ def returns(xy: np.ndarray, holes: list[shapely.Polygon], reach: float = 0.25) -
              for di in (-1, 0, 1) for dj in (-1, 0, 1)
              if first.get((i + di, j + dj), n) < n]
     if not pairs:
-        return np.zeros((0, len(holes)), dtype=np.int64)
+        return _none(holes)
     a, b = np.array(pairs).T
-    w = np.rint((turns[b] - turns[a]) / (2.0 * math.pi)).astype(np.int64)
-    w = w[np.any(w != 0, axis=1)]
-    return np.unique(w, axis=0) if len(w) else w
+    return _distinct(np.rint((turns[b] - turns[a]) / (2.0 * math.pi)).astype(np.int64))
 
 
 def closures(doc: dict, pairs: tuple[tuple[int, int, float], ...], crossings: list[tuple[float, int, int]],
-             truth: Track, odometry: Track, holes: list[shapely.Polygon], slack: float = 0.5) -> np.ndarray:
+             truth: Track, outline: dict[int, shapely.Geometry], holes: list[shapely.Polygon],
+             slack: float = 0.5) -> np.ndarray:
     """The winding vectors (K, len(holes)) of the loops the map closed: each time it knew the robot
     was back in a space it had left, the true path from its last crossing out of that space to its
     crossing back in, closed by a straight step across the space. It knew so
@@ -135,13 +146,11 @@ def closures(doc: dict, pairs: tuple[tuple[int, int, float], ...], crossings: li
     ``pairs``: (new ASR, earlier ASR, time) of each true closure
     (:attr:`service.evaluate.Evaluation.true_pairs`); ``crossings``: ``(t, from ASR, to ASR)`` of
     every exit crossing, on the truth's clock (:attr:`service.sim.simulator.LockedMapper.crossings`);
-    ``truth``: the robot's true poses (world frame); ``odometry``: the odometry the mapper was
-    given, to place each ASR by the truth."""
+    ``truth``: the robot's true poses (world frame); ``outline``: each ASR's true outline
+    (:func:`service.evaluate.true_outlines`)."""
     if len(truth) < 3 or not holes or not crossings:
-        return np.zeros((0, len(holes)), dtype=np.int64)
+        return _none(holes)
     same_place = places(doc)
-    asrs = {a["id"]: a for a in doc.get("asrs", [])}
-    _, outline, _ = true_outlines(list(asrs.values()), truth, odometry)
     xy = np.array([p[:2] for p in truth.poses], dtype=float)
     back: list[tuple[float, int]] = []  # (crossing in, the space's ASR)
     first_in: dict[int, float] = {}
@@ -161,22 +170,18 @@ def closures(doc: dict, pairs: tuple[tuple[int, int, float], ...], crossings: li
             continue
         path = xy[bisect.bisect_left(truth.t, left[-1]): bisect.bisect_right(truth.t, t_in)]
         out.append([winding(path, c) for c in centres])
-    w = np.array(out, dtype=np.int64).reshape(-1, len(holes))
-    w = w[np.any(w != 0, axis=1)]
-    return np.unique(w, axis=0) if len(w) else w
+    return _distinct(np.array(out, dtype=np.int64).reshape(-1, len(holes)))
 
 
-def enclosed(doc: dict, crossings: list[tuple[float, int, int]], truth: Track, odometry: Track,
+def enclosed(outline: dict[int, shapely.Geometry], crossings: list[tuple[float, int, int]],
              holes: list[shapely.Polygon], clearance: float = P2DX_RADIUS) -> np.ndarray:
     """The unit winding vectors (K, len(holes)) of the holes the map surrounds without a cycle: a
     table island whose solid part (the hole less ``clearance``, m) lies inside one ASR's true
-    outline, or inside two ASRs joined by one transition (``crossings``, as for :func:`closures`),
-    the room round a table split in two. A loop round it needs no cycle of ASRs: one ASR's metric
-    map, or two joined rigidly, already hold it."""
-    asrs = doc.get("asrs", [])
-    if not asrs or not holes or len(truth) < 2:
-        return np.zeros((0, len(holes)), dtype=np.int64)
-    _, outline, _ = true_outlines(asrs, truth, odometry)
+    outline (``outline``, as for :func:`closures`), or inside two ASRs joined by one transition
+    (``crossings``), the room round a table split in two. A loop round it needs no cycle of ASRs:
+    one ASR's metric map, or two joined rigidly, already hold it."""
+    if not outline or not holes:
+        return _none(holes)
     filled = {k: shapely.union_all([shapely.Polygon(p.exterior) for p in getattr(g, "geoms", [g])
                                     if isinstance(p, shapely.Polygon) and not p.is_empty])
               for k, g in outline.items()}
@@ -194,3 +199,19 @@ def loops_closed(driven: np.ndarray, closed: np.ndarray) -> tuple[int, int]:
     d, c = _independent(driven), _independent(closed)
     both = _independent(np.vstack([driven, closed])) if len(driven) and len(closed) else d + c
     return d, d + c - both
+
+
+def count(world: World, doc: dict, truth: Track, odometry: Track, crossings: list[tuple[float, int, int]],
+          pairs: tuple[tuple[int, int, float], ...]) -> tuple[int, int, int]:
+    """(the world's holes, loops driven, loops closed) of one run: its map document ``doc``, the
+    robot's ``truth`` (world frame), the ``odometry`` the mapper was given, its exit ``crossings``
+    and its true closures' ``pairs`` (as for :func:`closures`), all on the truth's clock."""
+    holes = world_holes(world)
+    driven = returns(np.array([p[:2] for p in truth.poses], dtype=float).reshape(-1, 2), holes)
+    asrs = doc.get("asrs", [])
+    if not len(driven) or not asrs or not len(odometry):
+        return len(holes), _independent(driven), 0
+    _, outline, _ = true_outlines(asrs, truth, odometry)
+    closed = np.vstack([enclosed(outline, crossings, holes),
+                        closures(doc, pairs, crossings, truth, outline, holes)])
+    return (len(holes), *loops_closed(driven, closed))

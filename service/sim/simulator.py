@@ -303,17 +303,11 @@ def summarise(world: World, doc: dict, robot: SimRobot, odometry: Track, entered
         ev = evaluate(doc, truth, odometry, entered_from, margin=math.inf)
         cycles, tp, fp, rev, det, pairs = (ev.cycles, ev.true_positives, ev.false_positives, ev.revisits,
                                            ev.detected, ev.false_pairs)
+        true_pairs = ev.true_pairs
     else:
         cycles = tp = fp = rev = det = 0
-        pairs = ()
-    holes = loops.world_holes(world)
-    driven = loops.returns(np.array([p[:2] for p in truth.poses], dtype=float).reshape(-1, 2), holes)
-    closed = driven[:0]
-    if len(driven):
-        closed = np.vstack([loops.enclosed(doc, list(crossings), truth, odometry, holes),
-                            loops.closures(doc, ev.true_pairs if tp else (), list(crossings), truth, odometry,
-                                           holes)])
-    loops_driven, loops_closed = loops.loops_closed(driven, closed)
+        pairs = true_pairs = ()
+    holes, loops_driven, loops_closed = loops.count(world, doc, truth, odometry, list(crossings), true_pairs)
     exits = [e for a in asrs for e in a.get("exits", [])]
     visited = {world.region_of(p[0], p[1]) for p in truth.poses[:: max(1, len(truth) // 5000)]}
     visited |= {world.region_of(*truth.poses[-1][:2])}
@@ -328,7 +322,7 @@ def summarise(world: World, doc: dict, robot: SimRobot, odometry: Track, entered
         regions_visited=[n for n in names if n in visited],
         regions_missed=[n for n in names if n not in visited],
         false_pairs=pairs,
-        holes=len(holes), loops_driven=loops_driven, loops_closed=loops_closed,
+        holes=holes, loops_driven=loops_driven, loops_closed=loops_closed,
         wedged=_wedged(truth, robot.body.contacts, sim_time),
     )
 
