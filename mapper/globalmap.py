@@ -337,9 +337,30 @@ class GlobalMap:
             and align.constraint >= p.verify_min_constraint
             and align.inliers >= p.verify_near_min_inliers
             and self._within_drift(align, n, m)
+            and self._parent_agrees(align, n, m)
         ):
             return align
         return None
+
+    def _parent_agrees(self, a: Alignment, n: int, m: int) -> bool:
+        """``verify_parent``: the ASR n was entered from, moved by ``a.correction`` (global frame),
+        and m keep each other's surfaces out of their free space (``verify_max_violation``).
+        True when off, or when n was entered from no ASR (or from m)."""
+        p = self.params
+        src = self._came_from.get(n)
+        if not p.verify_parent or src is None or src == m or src not in self.asrs:
+            return True
+        parent, match = self.asrs[src], self.asrs[m]
+        if len(parent.boundary) < 3:
+            return True
+        ps, _ = surface_points(parent, p.sample_spacing)
+        pm, _ = surface_points(match, p.sample_spacing)
+        margin = p.verify_free_space_margin
+        violation = max(
+            free_space_violation(transform_points(a.correction, ps), global_polygon(match), margin),
+            free_space_violation(pm, global_polygon(parent, compose(a.correction, parent.origin)), margin),
+        )
+        return violation <= p.verify_max_violation
 
     def _within_drift(self, a: Alignment, n: int, m: int) -> bool:
         """``near_drift_sigmas``: the alignment moves n's centre (global frame) no farther than that

@@ -197,6 +197,19 @@ class ExploreParams:
     half_width: float = 0.2125
     laser_x: float = 0.017
     laser_y: float = 0.008
+    #: Close loops actively (beyond method.md §8): once the current ASR has nothing left to look
+    #: at and no unexplored exit, the robot crosses one of its exits before it backtracks, if one
+    #: has no link and leads into space that other ASRs hold, none of them within
+    #: ``close_min_hops`` - 1 links. Such an exit counts as explored (the space beyond is known),
+    #: but crossing it makes a new ASR there (or re-enters one) whose cycle check can close the
+    #: loop, and links the two places for backtracking. Without it, `lab` seed 3 backed out of a
+    #: 6.7 m² piece whose centre lay in the 62 m² first ASR (the centre crosscheck held one way
+    #: only) and the loop round the north table island stayed open; held-out `lab` seed 12 flipped
+    #: between two ASRs at a corridor corner with no link back and left a region unentered. One
+    #: such crossing per ASR, none from a duplicate or from an ASR such a crossing made: a new ASR
+    #: in known space that matched nothing has unlinked exits into known space of its own.
+    close_loops: bool = True
+    close_min_hops: int = 3
 
 
 # --- what the explorer reads ----------------------------------------------------------------------
@@ -253,6 +266,7 @@ class Goal:
     """One step of exploration, in the frame of ASR ``asr``.
 
     ``kind``: ``unknown`` (go to ``target``, then face ``look_at``), ``exit`` (an unexplored exit),
+    ``close`` (an exit into known space not linked to it: ``ExploreParams.close_loops``),
     ``backtrack`` (a known exit on the way to ``path[-1]``), ``settle`` (just crossed into ``asr``:
     on to ``target``, the point beyond the exit), ``done`` or ``wait`` (no ASR yet).
     For exits: ``target`` is the staging point inside, ``through`` the point beyond the exit.
@@ -288,6 +302,11 @@ class Memory:
     #: Exits the robot crossed into an ASR already known, by midpoint per ASR (its frame): they
     #: lead into mapped space, whether or not the mapper linked them; not retried.
     crossed_at: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
+    #: ASRs the robot crossed an exit of to close a loop (``ExploreParams.close_loops``): one
+    #: such crossing per ASR; and the ASRs those crossings made, which make none (a new ASR in
+    #: known space that did not match has unlinked exits into known space of its own).
+    closing_from: set[int] = field(default_factory=set)
+    closing_made: set[int] = field(default_factory=set)
 
 
 def _add_point(store: dict[int, list[tuple[float, float]]], asr: int, point) -> None:
@@ -634,6 +653,12 @@ class Planner:
         exits = self.unexplored_exits(view, asr)
         if exits:
             return self._through(view, asr, exits[0], "exit", free, (asr.id,))
+        closing = self.closing_exit(view, asr)
+        if closing is not None:
+            self.memory.closing_from.add(asr.id)
+            log.info("exploration: crossing exit %s of ASR %s into known space to close a loop",
+                     closing.id, asr.id)
+            return self._through(view, asr, closing, "close", free, (asr.id,))
         path = self.backtrack_path(view)
         if path is None:
             far = self._goto(view, asr, free)
@@ -652,6 +677,39 @@ class Planner:
         hops, exit_id = path
         ex = exit_of(view, asr, exit_id)
         return self._through(view, asr, ex, "backtrack", free, hops)
+
+    def closing_exit(self, view: MapView, asr: ASR) -> Exit | None:
+        """The widest exit of ``asr`` to cross to close a loop (``ExploreParams.close_loops``), or
+        None. The exit has no link, is wide enough and has not failed; the space beyond it is
+        known (``known_depths``) and held by no ASR within ``close_min_hops`` - 1 links of ``asr``
+        (nor their duplicates). None from a duplicate, from an ASR already left so, or from an
+        ASR such a crossing made (``Memory.closing_from``, ``closing_made``)."""
+        mem = self.memory
+        if (not self.p.close_loops or asr.duplicate_of is not None or asr.id in mem.closing_from
+                or asr.id in mem.closing_made):
+            return None
+        edges = _edges(view)
+        related = _within_hops(edges, asr.id, self.p.close_min_hops - 1)
+        for ex in sorted(asr.exits, key=lambda e: -e.width):
+            if (ex.to is not None or (asr.id, ex.id) in edges or ex.width < self.p.min_exit_width
+                    or self._failed(asr, ex)):
+                continue
+            if not self._known_beyond(view, asr, ex):
+                continue
+            owners = self._owners_beyond(view, asr, ex)
+            near = any(o in related or view.asrs[o].duplicate_of in related for o in owners)
+            if owners and not near:
+                return ex
+        return None
+
+    def _owners_beyond(self, view: MapView, asr: ASR, ex: Exit) -> set[int]:
+        """The ASRs other than ``asr`` whose polygons (global frame, shrunk by ``known_margin``)
+        hold a point of the probe line beyond ``ex`` (``known_depths``)."""
+        n, depth = self._geometry(asr, ex)
+        mid = np.asarray(ex.midpoint, dtype=float)
+        pts = transform_points(asr.origin, np.array([mid + (depth + d) * n for d in self.p.known_depths]))
+        return {i for i, g in self._known_areas(view)
+                if i != asr.id and shapely.contains_xy(g, pts[:, 0], pts[:, 1]).any()}
 
     def _goto(self, view: MapView, asr: ASR, free) -> Goal | None:
         """No way through the topological map to an unexplored exit (the way out of this ASR
@@ -873,6 +931,19 @@ def _edges(view: MapView, borrow: bool = False) -> dict[tuple[int, str], int]:
     return edges
 
 
+def _within_hops(edges: dict[tuple[int, str], int], start: int, hops: int) -> set[int]:
+    """The ASRs at most ``hops`` links from ``start`` (itself included), links taken both ways."""
+    adjacent: dict[int, set[int]] = {}
+    for (a, _), b in edges.items():
+        adjacent.setdefault(a, set()).add(b)
+        adjacent.setdefault(b, set()).add(a)
+    seen, frontier = {start}, {start}
+    for _ in range(hops):
+        frontier = {b for a in frontier for b in adjacent.get(a, ())} - seen
+        seen |= frontier
+    return seen
+
+
 BORROWED = "<"  # prefix of a borrowed exit id: "<" + source ASR + "|" + its exit id
 
 
@@ -1042,15 +1113,16 @@ class Explorer:
         self._best_t = t
         self._reached_t = None
         self._through_blocked_since = None
-        if goal.kind in ("unknown", "exit", "backtrack", "goto"):
+        if goal.kind in ("unknown", "exit", "close", "backtrack", "goto"):
             self.counts["goals"] += 1
-            kind = {"unknown": "unknown", "exit": "exits", "backtrack": "backtracks", "goto": "backtracks"}
+            kind = {"unknown": "unknown", "exit": "exits", "close": "exits", "backtrack": "backtracks",
+                    "goto": "backtracks"}
             self.counts[kind[goal.kind]] += 1
             log.debug("goal %s", goal)
 
     def _too_often(self, goal: Goal) -> bool:
         """Count the choice of an exit goal; True once it was chosen ``max_attempts`` times this round."""
-        if goal.kind not in ("exit", "backtrack", "goto") or goal.exit is None or goal.asr is None:
+        if goal.kind not in ("exit", "close", "backtrack", "goto") or goal.exit is None or goal.asr is None:
             return False
         key = (self.planner.memory.retries, goal.path[-1] if goal.kind == "goto" else goal.asr, goal.exit)
         n, start = self._attempts.get(key, (0, -math.inf))
@@ -1091,13 +1163,16 @@ class Explorer:
             other = view.asrs.get(g.path[-1])
             ex = next((e for e in other.exits if e.id == g.exit), None) if other is not None else None
             return ex is not None and not self.planner.explored(view, other, ex)  # type: ignore[arg-type]
-        if g.kind in ("exit", "backtrack"):
+        if g.kind in ("exit", "close", "backtrack"):
             ex = exit_of(view, asr, g.exit)  # type: ignore[arg-type]
             if ex is None:
                 return False
             if g.kind == "exit":
                 # An unknown region appearing first takes precedence (enclosure before exits).
                 return not self.planner.explored(view, asr, ex) and not self.planner.pending_unknown(asr)
+            if g.kind == "close":
+                return (ex.to is None and not self.planner._failed(asr, ex)
+                        and not self.planner.pending_unknown(asr))
             return True
         return False
 
@@ -1215,6 +1290,9 @@ class Explorer:
         prev, self._last_current = self._last_current, view.current
         newest, self._last_newest = self._last_newest, max(view.asrs, default=-1)
         g = self.goal
+        if (g is not None and g.kind == "close" and self.phase == "through" and g.asr == prev
+                and view.current is not None and view.current > newest):
+            self.planner.memory.closing_made.add(view.current)
         if (g is not None and g.kind == "exit" and self.phase == "through" and g.asr == prev
                 and g.exit_mid is not None
                 and view.current is not None and view.current != prev and view.current <= newest):
@@ -1243,8 +1321,9 @@ class Explorer:
         there would only leave the new ASR again (``lab`` seed 15 flipped so between two ASRs for
         200 s)."""
         g = self.goal
-        if (g is None or g.kind not in ("exit", "backtrack") or self.phase != "through" or g.through is None
-                or g.asr not in view.asrs or view.current not in view.asrs or g.asr == view.current):
+        if (g is None or g.kind not in ("exit", "close", "backtrack") or self.phase != "through"
+                or g.through is None or g.asr not in view.asrs or view.current not in view.asrs
+                or g.asr == view.current):
             return None
         old, new = view.asrs[g.asr], view.asrs[view.current]
         glob = transform_points(old.origin, np.array([g.through]))
@@ -1274,7 +1353,8 @@ class Explorer:
         return self._drive_to(g.target, pose, points, t, "to an unknown region")  # type: ignore[arg-type]
 
     def _traverse(self, g: Goal, pose: Pose, points: np.ndarray, t: float) -> Command:
-        what = "through exit" if g.kind == "exit" else "backtracking through exit"
+        what = {"exit": "through exit", "close": "closing a loop through exit"}.get(
+            g.kind, "backtracking through exit")
         if self.phase == "approach":
             dist = math.hypot(g.target[0] - pose[0], g.target[1] - pose[1])  # type: ignore[index]
             if dist < self.p.arrive_tol:

@@ -473,3 +473,28 @@ def test_exits_pin_an_open_axis_only_when_one_shift_within_the_reach_explains_th
     two = np.array([_door(0.3), _door(4.3)])
     assert exit_pin(two, q, axis, 0.2, 1.0) == pytest.approx((-0.3, 2))  # both doors agree
     assert exit_pin(p, np.zeros((0, 2, 2)), axis, 0.2, 1.0) is None
+
+
+def test_an_aligned_match_is_refused_when_it_brings_the_asr_entered_from_into_the_match():
+    # verify_parent: room 1 (3 m x 4 m, open north) is the candidate; 3 was entered from 2, the
+    # corridor north of the rooms (open south). The alignment's correction, applied to 2 too:
+    # unmoved, or along the corridor, 2 stays out of 1's free space and 1 out of 2's; moved 2 m
+    # south, 2's north wall runs through room 1, so 3 is not 1 (a like room next door).
+    gm = GlobalMap(FULL)
+    room = box_asr(1, (0, 0, 3, 4), (1.5, 2.0, 0.0), "N")
+    corridor = box_asr(2, (0, 4, 7, 6), (3.5, 5.0, 0.0), "S")
+    other = box_asr(3, (4, 0, 7, 4), (5.5, 2.0, 0.0), "N")
+    for a, frame in ((room, (1.5, 2.0, 0.0)), (corridor, (3.5, 5.0, 0.0)), (other, (5.5, 2.0, 0.0))):
+        a.origin = frame
+        gm.asrs[a.id] = a
+    gm._came_from[3] = 2
+
+    def along(correction):
+        return Alignment(correction=correction, rms=0.01, inliers=1.0, shift=0.0)
+
+    assert gm._parent_agrees(along((0.0, 0.0, 0.0)), 3, 1)
+    assert gm._parent_agrees(along((-4.0, 0.0, 0.0)), 3, 1)
+    assert not gm._parent_agrees(along((0.0, -2.0, 0.0)), 3, 1)
+    assert GlobalMap(FULL.replace(verify_parent=False))._parent_agrees(along((0.0, -2.0, 0.0)), 3, 1)
+    gm._came_from[3] = None  # entered from nothing: nothing to check
+    assert gm._parent_agrees(along((0.0, -2.0, 0.0)), 3, 1)

@@ -537,3 +537,51 @@ def test_after_a_crossing_the_robot_settles_beyond_the_exit_only_inside_the_new_
     assert g is not None and g.kind == "settle" and g.target == pytest.approx((beyond, 2.0))
     notched = room(2, beyond + 0.3, 0, 4, 4, origin=(4.0, 0.0, 0.0))
     assert ex._settle(view([a1, notched], 2, pose=(beyond + 0.5, 0.5, 0.0))) is None
+
+
+def _ring():
+    """Four rooms round a block, linked 1-2-3-4 (2 east of 1, 3 north of 2, 4 west of 3, so north
+    of 1); 4's south doorway, with no link, opens into 1's space."""
+    a1 = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3), to=2)])
+    a2 = room(2, 0, 0, 4, 4, origin=(4.0, 0.0, 0.0),
+              exits=[door(2, 0, (0, 1), (0, 3), to=1), door(2, 1, (1, 4), (3, 4), to=3)])
+    a3 = room(3, 0, 0, 4, 4, origin=(4.0, 4.0, 0.0),
+              exits=[door(3, 0, (1, 0), (3, 0), to=2), door(3, 1, (0, 1), (0, 3), to=4)])
+    a4 = room(4, 0, 0, 4, 4, origin=(0.0, 4.0, 0.0), edges=("exit", "surface", "surface", "surface"),
+              exits=[door(4, 0, (4, 1), (4, 3), to=3), door(4, 1, (1, 0), (3, 0))])
+    return [a1, a2, a3, a4]
+
+
+def test_an_unlinked_exit_into_space_an_asr_far_round_the_map_holds_is_crossed_once_to_close_the_loop():
+    # The robot came round the block into 4; 4's south doorway leads into 1's space, which the map
+    # holds (so the doorway needs no exploring) but no link joins 4 to 1: crossing it lets the
+    # mapper's cycle check match the ASR made there with 1. It is chosen once, then the planner
+    # goes on as before (nothing left: done).
+    planner = Planner()
+    v = view(_ring(), 4, pose=(2.0, 2.0, 0.0))
+    assert planner.unexplored_exits(v, v.asrs[4]) == []
+    g = planner.plan(v)
+    assert g.kind == "close" and g.exit == "4/1" and g.asr == 4
+    assert g.through == pytest.approx((2.0, -P.through_distance))
+    assert planner.plan(v).kind == "done"
+    # Switched off, or with the space beyond held by an ASR within close_min_hops - 1 links of 4
+    # (1 is three links away), the exit is left: the space beyond is known.
+    assert Planner(ExploreParams(close_loops=False)).plan(v).kind == "done"
+    assert Planner(ExploreParams(close_min_hops=4)).plan(v).kind == "done"
+
+
+def test_a_loop_closing_crossing_is_driven_like_an_exit_and_ends_in_the_new_asr():
+    ex = Explorer()
+    rooms = _ring()
+    none = np.zeros((0, 2))
+    ex.step(view(rooms, 4, pose=(2.0, 2.0, 0.0)), none, 0.0)
+    assert ex.goal.kind == "close"
+    cmd = ex.step(view(rooms, 4, pose=(*ex.goal.target, -math.pi / 2)), none, 0.5)
+    assert ex.phase == "through" and "closing a loop through exit 4/1" in cmd.status
+    assert cmd.v > 0.0
+    # the mapper made ASR 5 beyond the doorway (where 1 is): the goal ends there, nothing is left
+    a5 = room(5, 0, 0, 4, 4, origin=(0.0, 0.0, 0.0), exits=[door(5, 0, (1, 4), (3, 4), to=4)])
+    ex.step(view([*rooms, a5], 5, pose=(2.0, 3.0, -math.pi / 2)), none, 1.0)
+    assert ex.goal is None or ex.goal.kind != "close"
+    # one such crossing per ASR, and none from the ASR it made (no chain through known space)
+    assert ex.planner.memory.closing_from == {4} and ex.planner.memory.closing_made == {5}
