@@ -97,15 +97,14 @@ def test_a_bad_world_is_one_line_on_stderr(tmp_path, capsys):
 
 # The goals of the issue. ``office`` (seed 0) finishes with every room entered and no false
 # closure; ``aliasing`` gives no false closure. The whole goal is not met (README, "Simulation"):
-# over seeds 0-9 of ``lab`` and 0-5 of the others, 123 of 124 regions are entered, no run has a
-# false closure, 32 of 207 revisits are missed and 26 of 29 loops driven are closed (this
-# session's machine; the runs differ between machines). ``lab`` seed 0 misses none here (1 of 6
-# on the last session's machine), ``office`` seed 0 misses 1 of 7: these XPASS (and show) where
-# they get there.
+# over seeds 0-9 of ``lab`` and 0-5 of the others, 124 of 124 regions are entered, no run has a
+# false closure, 75 of 309 revisits are missed and 53 of 59 loops driven are closed (this
+# session's machine; the runs differ between machines). ``lab`` seed 0 misses 4 of 14 revisits,
+# ``office`` seed 0 2 of 7: these XPASS (and show) where they get there.
 EXPLORATION_GOAL = pytest.mark.xfail(
-    reason="revisits are missed: office seed 0 misses 1 of 7 (README, known faults: shallow and "
-           "one-way revisits, corridor drift the pose graph cannot bound, aligned candidates with few "
-           "agreeing surfaces)",
+    reason="revisits are missed: lab seed 0 misses 4 of 14, office seed 0 2 of 7 (README, known "
+           "faults: shallow and one-way revisits, corridor drift the pose graph cannot bound, "
+           "aligned candidates with few agreeing surfaces)",
     strict=False)
 
 
