@@ -580,10 +580,16 @@ class Planner:
             self._beyond[key] = self._known_beyond_now(view, asr, ex)
         return self._beyond[key]
 
-    def _known_beyond_now(self, view: MapView, asr: ASR, ex: Exit) -> bool:
+    def _probe_points(self, asr: ASR, ex: Exit) -> np.ndarray:
+        """The points ``known_depths`` beyond ``ex`` (beyond the ASR polygon, on the exit's
+        normal), global frame (m)."""
         n, depth = self._geometry(asr, ex)
         mid = np.asarray(ex.midpoint, dtype=float)
-        pts = transform_points(asr.origin, np.array([mid + (depth + d) * n for d in self.p.known_depths]))
+        return transform_points(asr.origin, np.array([mid + (depth + d) * n for d in self.p.known_depths]))
+
+    def _known_beyond_now(self, view: MapView, asr: ASR, ex: Exit) -> bool:
+        n, depth = self._geometry(asr, ex)
+        pts = self._probe_points(asr, ex)
         for other in self._known_areas(view):
             if other[0] == asr.id:
                 continue
@@ -705,9 +711,7 @@ class Planner:
     def _owners_beyond(self, view: MapView, asr: ASR, ex: Exit) -> set[int]:
         """The ASRs other than ``asr`` whose polygons (global frame, shrunk by ``known_margin``)
         hold a point of the probe line beyond ``ex`` (``known_depths``)."""
-        n, depth = self._geometry(asr, ex)
-        mid = np.asarray(ex.midpoint, dtype=float)
-        pts = transform_points(asr.origin, np.array([mid + (depth + d) * n for d in self.p.known_depths]))
+        pts = self._probe_points(asr, ex)
         return {i for i, g in self._known_areas(view)
                 if i != asr.id and shapely.contains_xy(g, pts[:, 0], pts[:, 1]).any()}
 
