@@ -350,17 +350,11 @@ class GlobalMap:
         src = self._came_from.get(n)
         if not p.verify_parent or src is None or src == m or src not in self.asrs:
             return True
-        parent, match = self.asrs[src], self.asrs[m]
-        if len(parent.boundary) < 3:
+        if len(self.asrs[src].boundary) < 3:
             return True
-        ps, _ = surface_points(parent, p.sample_spacing)
-        pm, _ = surface_points(match, p.sample_spacing)
-        margin = p.verify_free_space_margin
-        violation = max(
-            free_space_violation(transform_points(a.correction, ps), global_polygon(match), margin),
-            free_space_violation(pm, global_polygon(parent, compose(a.correction, parent.origin)), margin),
-        )
-        return violation <= p.verify_max_violation
+        ps, _ = surface_points(self.asrs[src], p.sample_spacing)
+        pm, _ = surface_points(self.asrs[m], p.sample_spacing)
+        return self._moved_violation(src, ps, a.correction, m, pm) <= p.verify_max_violation
 
     def _within_drift(self, a: Alignment, n: int, m: int) -> bool:
         """``near_drift_sigmas``: the alignment moves n's centre (global frame) no farther than that
@@ -401,14 +395,18 @@ class GlobalMap:
         if a.constraint < p.verify_constrained:
             a = self._pin_by_exits(a, n, m, pn)
         # Free-space consistency: once aligned, neither ASR may show walls inside the other's space.
-        moved = transform_points(a.correction, pn)
-        poly_n = shapely.transform(global_polygon(self.asrs[n]), lambda c: transform_points(a.correction, c))
-        margin = p.verify_free_space_margin
-        violation = max(
-            free_space_violation(moved, global_polygon(self.asrs[m]), margin),
-            free_space_violation(pm, poly_n, margin),
+        return dataclasses.replace(a, violation=self._moved_violation(n, pn, a.correction, m, pm))
+
+    def _moved_violation(self, k: int, pk: np.ndarray, correction: Pose, m: int, pm: np.ndarray) -> float:
+        """The larger fraction of surface points inside the other's free space
+        (``verify_free_space_margin`` deep), ASR k moved by ``correction`` against ASR m as placed;
+        ``pk``, ``pm``: their surface points (global frame, as placed)."""
+        margin = self.params.verify_free_space_margin
+        poly_k = shapely.transform(global_polygon(self.asrs[k]), lambda c: transform_points(correction, c))
+        return max(
+            free_space_violation(transform_points(correction, pk), global_polygon(self.asrs[m]), margin),
+            free_space_violation(pm, poly_k, margin),
         )
-        return dataclasses.replace(a, violation=violation)
 
     def _pin_by_exits(self, a: Alignment, n: int, m: int, pn: np.ndarray) -> Alignment:
         """``exit_pin_sigmas``: an alignment whose surfaces left its axis open (a straight corridor

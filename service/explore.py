@@ -656,10 +656,11 @@ class Planner:
         if pending:
             m = min(pending, key=lambda q: math.hypot(q[0] - here[0], q[1] - here[1]))
             return Goal("unknown", asr.id, target=_inside_point(free, m, here), look_at=m)
-        exits = self.unexplored_exits(view, asr)
+        edges = _edges(view)
+        exits = self.unexplored_exits(view, asr, edges)
         if exits:
             return self._through(view, asr, exits[0], "exit", free, (asr.id,))
-        closing = self.closing_exit(view, asr)
+        closing = self.closing_exit(view, asr, edges)
         if closing is not None:
             self.memory.closing_from.add(asr.id)
             log.info("exploration: crossing exit %s of ASR %s into known space to close a loop",
@@ -684,7 +685,7 @@ class Planner:
         ex = exit_of(view, asr, exit_id)
         return self._through(view, asr, ex, "backtrack", free, hops)
 
-    def closing_exit(self, view: MapView, asr: ASR) -> Exit | None:
+    def closing_exit(self, view: MapView, asr: ASR, edges: dict | None = None) -> Exit | None:
         """The widest exit of ``asr`` to cross to close a loop (``ExploreParams.close_loops``), or
         None. The exit has no link, is wide enough and has not failed; the space beyond it is
         known (``known_depths``) and held by no ASR within ``close_min_hops`` - 1 links of ``asr``
@@ -694,7 +695,7 @@ class Planner:
         if (not self.p.close_loops or asr.duplicate_of is not None or asr.id in mem.closing_from
                 or asr.id in mem.closing_made):
             return None
-        edges = _edges(view)
+        edges = _edges(view) if edges is None else edges
         related = _within_hops(edges, asr.id, self.p.close_min_hops - 1)
         for ex in sorted(asr.exits, key=lambda e: -e.width):
             if (ex.to is not None or (asr.id, ex.id) in edges or ex.width < self.p.min_exit_width
