@@ -1557,15 +1557,23 @@ class Explorer:
         return bool(front > self.p.recovery_distance + self.p.stop_distance)
 
     def _escape(self, last: Command, points: np.ndarray) -> list[tuple[float, float, float]]:
-        """Moves to try, in turn, to get clear of a contact: away from the blocked motion first,
-        then turning either way, then the other translation (the first that does not stall wins)."""
+        """Moves to try, in turn, to get clear of a contact (the first that does not stall wins).
+
+        A blocked translation: away from it first, then turning either way, then the other
+        translation. A blocked turn (a rear corner swept into something): forward, then back,
+        and only then turning back the way it came, which always succeeds and so ends the escape
+        where the turn will jam again (``aliasing`` seeds 1 and 5 ended so, turning to and fro
+        against chair legs and a corner behind for the last 130-300 s, the way ahead open)."""
         p = self.p
-        d = -1.0 if last.v > 0.0 else 1.0 if last.v < 0.0 else (1.0 if self._front_free(points) else -1.0)
+        move = p.recovery_distance / p.recovery_speed
+        turn = 0.5 / (0.5 * p.w_max)
         r = -1.0 if last.w > 0.0 else 1.0
-        move = (p.recovery_distance / p.recovery_speed, 0.0, 0.0)
-        turn = (0.5 / (0.5 * p.w_max), 0.0, 0.0)
-        return [(move[0], d * p.recovery_speed, 0.0), (turn[0], 0.0, r * 0.5 * p.w_max),
-                (turn[0], 0.0, -r * 0.5 * p.w_max), (move[0], -d * p.recovery_speed, 0.0)]
+        if last.v == 0.0:
+            return [(move, p.recovery_speed, 0.0), (move, -p.recovery_speed, 0.0),
+                    (turn, 0.0, r * 0.5 * p.w_max)]
+        d = -1.0 if last.v > 0.0 else 1.0
+        return [(move, d * p.recovery_speed, 0.0), (turn, 0.0, r * 0.5 * p.w_max),
+                (turn, 0.0, -r * 0.5 * p.w_max), (move, -d * p.recovery_speed, 0.0)]
 
     def _queue(self, moves: list[tuple[float, float, float]], t: float, escape: bool = False) -> None:
         self._recovery = list(moves)
@@ -1587,6 +1595,14 @@ class Explorer:
         self._give_up("stuck")
         return self._recover(points, t)
 
+    def _refused(self, v: float, points: np.ndarray) -> bool:
+        """Whether a recovery move of forward speed ``v`` (m/s; 0: a turn) cannot start: a turn
+        that would sweep into a surface seen, or a forward move the safety stop holds (the body's
+        own path, no margin)."""
+        if v == 0.0:
+            return self._turn_blocked()
+        return v > 0.0 and safety_limit(points, v, self.p, margin=0.0) <= 0.0
+
     def _recover(self, points: np.ndarray, t: float) -> Command:
         if t >= self._recovery_until:
             if self._escaping and not self._skipped and self._recovery_cmd != (0.0, 0.0):
@@ -1596,9 +1612,9 @@ class Explorer:
                 self._recovery_cmd = (0.0, 0.0)
                 return Command(0.0, 0.0, "recovered")
             duration, v, w = self._recovery.pop(0)
-            while v == 0.0 and self._turn_blocked() and self._recovery:
-                duration, v, w = self._recovery.pop(0)  # a turn that would sweep into a surface seen
-            if v == 0.0 and self._turn_blocked():
+            while self._recovery and self._refused(v, points):
+                duration, v, w = self._recovery.pop(0)
+            if self._refused(v, points):
                 self._recovery_cmd = (0.0, 0.0)
                 return Command(0.0, 0.0, "recovered")
             self._recovery_until = t + duration

@@ -295,6 +295,24 @@ def test_no_progress_for_the_stuck_time_triggers_recovery_and_gives_the_goal_up(
 # --- closed loop: the controller drives a simulated body through a doorway ----------------------
 
 
+def _drive(world, asr: ASR, t_max: float, arrived) -> Body:
+    """The explorer on ``asr`` (its frame the world's) driving a simulated body in ``world`` every
+    0.1 s, stalls reported as P2OS would, until ``arrived(pose)`` or ``t_max`` s; the body."""
+    body = Body(world)
+    rc = RayCaster(world, sigma=0.005)
+    ex = Explorer()
+    angles = np.radians(np.arange(-90.0, 90.5, 1.0))
+    dt, t, stalled = 0.1, 0.0, False
+    while t < t_max and not arrived(body.pose):
+        pts = scan_points(rc.scan(body.pose, angles), angles, rc.max_range, P)
+        cmd = ex.step(MapView(1, body.pose, {1: asr}), pts, t, stalled=stalled)
+        x, y, th = body.pose
+        _, stalled = body.move((x + cmd.v * dt * math.cos(th), y + cmd.v * dt * math.sin(th),
+                                th + cmd.w * dt), t)
+        t += dt
+    return body
+
+
 def test_drives_through_a_doorway_without_touching_it():
     world = parse_world({
         "schema": "asrmap/world/1", "start": [1.5, 1.0, 0.0],
@@ -305,17 +323,7 @@ def test_drives_through_a_doorway_without_touching_it():
     boundary = np.array([[0, 0], [4, 0], [4, 2.05], [4, 2.95], [4, 4], [0, 4.0]])
     edges = ["surface", "surface", "exit", "surface", "surface", "surface"]
     asr = ASR(1, 0.0, (0, 0, 0), boundary, edges, (2.0, 2.0), exits=[door(1, 0, (4.0, 2.05), (4.0, 2.95))])
-    body = Body(world)
-    rc = RayCaster(world, sigma=0.005)
-    ex = Explorer()
-    angles = np.radians(np.arange(-90.0, 90.5, 1.0))
-    dt, t = 0.1, 0.0
-    while t < 60.0 and body.pose[0] < 4.5:
-        pts = scan_points(rc.scan(body.pose, angles), angles, rc.max_range, P)
-        cmd = ex.step(MapView(1, body.pose, {1: asr}), pts, t)
-        x, y, th = body.pose
-        body.move((x + cmd.v * dt * math.cos(th), y + cmd.v * dt * math.sin(th), th + cmd.w * dt), t)
-        t += dt
+    body = _drive(world, asr, 60.0, lambda pose: pose[0] > 4.5)
     assert body.pose[0] > 4.5 and abs(body.pose[1] - 2.5) < 0.25
     assert not body.contacts
 
@@ -455,6 +463,28 @@ def test_a_recovery_move_may_pull_away_along_a_wall_beside_the_robot():
     ex._queue([(2.0, 0.15, 0.0)], 0.0)  # a recovery move straight ahead
     cmd = ex.step(view([room(1, -5, -5, 5, 5)], 1, pose=(0.0, 0.0, 0.0)), wall, 0.0)
     assert cmd.status == "recovering" and cmd.v == 0.15
+
+
+
+
+def test_a_turn_jammed_by_chair_legs_behind_gets_free_by_moving_forward():
+    """``aliasing`` seed 5's wedge: the robot backed up against a chair's legs, a wall 0.65 m ahead;
+    the turn it wants sweeps a rear corner into a leg (the laser cannot see behind). Escaping by
+    backing up jams at once and turning back always succeeds, so the robot turned to and fro for
+    the last 130 s. A jammed turn is escaped forward first: it gets clear and leaves by the door."""
+    world = parse_world({
+        "schema": "asrmap/world/1", "start": [3.15, 3.35, 1.5],
+        "walls": [{"from": [0, 0], "to": [5, 0]}, {"from": [5, 0], "to": [5, 4]},
+                  {"from": [5, 4], "to": [0, 4]},
+                  {"from": [0, 4], "to": [0, 0], "doors": [{"at": 2.0, "width": 0.9}]}],
+        "loops": [[[-3, -1], [6, -1], [6, 5], [-3, 5]]],
+        "circles": [[3.1, 2.6, 0.015], [3.5, 2.6, 0.015], [3.1, 3.0, 0.015], [3.5, 3.0, 0.015]],
+    })
+    boundary = np.array([[0, 0], [5, 0], [5, 4], [0, 4], [0, 2.45], [0, 1.55]])
+    edges = ["surface", "surface", "surface", "surface", "exit", "surface"]
+    asr = ASR(1, 0.0, (0, 0, 0), boundary, edges, (2.5, 2.0), exits=[door(1, 0, (0.0, 2.45), (0.0, 1.55))])
+    body = _drive(world, asr, 120.0, lambda pose: pose[0] < -0.5)
+    assert body.pose[0] < -0.5, f"still in the room at {body.pose}, {len(body.contacts)} contacts"
 
 
 def test_a_corridor_end_seen_as_a_u_of_exit_edges_is_crossed_through_its_open_end():
