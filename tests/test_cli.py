@@ -39,3 +39,23 @@ def test_bad_numbers_are_refused_naming_the_option(capsys):
         assert exc.value.code == 2
         err = capsys.readouterr().err
         assert f"argument {option}: expected a " in err and ("number" in err), err
+
+
+def test_an_output_path_that_cannot_be_written_is_refused_before_the_run(capsys, tmp_path):
+    """A typo in --json/--svg must not cost a long replay or exploration: argparse refuses it first."""
+    import pytest
+
+    log = tmp_path / "run.clf"  # never read: the refusal comes before
+    missing = tmp_path / "no-such-dir" / "map.json"
+    for argv, option, says in ((["replay", str(log), "--json", str(missing)], "--json", "no directory"),
+                               (["replay", str(log), "--svg", str(tmp_path)], "--svg", "the directory"),
+                               (["simulate", "--svg", str(missing)], "--svg", "no directory"),
+                               (["render", "map.json", "--svg", str(missing)], "--svg", "no directory"),
+                               (["monitor", "--svg", str(missing.with_name("{robot}.svg"))], "--svg",
+                                "no directory")):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert f"argument {option}: " in err and says in err, err
+        assert "Traceback" not in err

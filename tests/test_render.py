@@ -64,3 +64,13 @@ def test_asrmap_render_refuses_a_file_that_is_not_a_map_in_one_line(tmp_path, ca
     assert main(["render", str(src), "--svg", str(tmp_path / "x.svg")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "asrmap/map/1" in err[0]
+
+
+def test_asrmap_render_refuses_a_binary_file_naming_it(tmp_path, capsys):
+    from service.cli import main
+
+    src = tmp_path / "scan.bin"
+    src.write_bytes(b"\x02\x80\xd6\x02\xb0\xff\xfe garbage")
+    assert main(["render", str(src), "--svg", str(tmp_path / "x.svg")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(src) in err[0] and "not JSON" in err[0]

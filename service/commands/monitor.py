@@ -6,7 +6,7 @@ import signal
 import sys
 import threading
 
-from service.argtypes import non_negative
+from service.argtypes import non_negative, output_file
 from service.monitor import Monitor, SvgWriter, discover, format_update
 
 NAME = "monitor"
@@ -18,7 +18,7 @@ def add_arguments(p) -> None:
     p.add_argument("--robot", default="*", help="robot name to watch (default: every robot)")
     p.add_argument("--connect", action="append", metavar="ENDPOINT",
                    help="Zenoh endpoint of the robot or a router (default tcp/127.0.0.1:7447; repeatable)")
-    p.add_argument("--svg", metavar="OUT",
+    p.add_argument("--svg", metavar="OUT", type=output_file,
                    help="keep a picture of the map current in OUT ('{robot}' in OUT: one file per robot)")
     p.add_argument("--once", action="store_true",
                    help="list the robots alive and their maps, then exit (1 if none answered)")

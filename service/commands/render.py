@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from service.argtypes import output_file
+
 NAME = "render"
 HELP = "draw a saved map (asrmap/map/1 JSON) as SVG: topological map beside the global metric map"
 EXAMPLE = "asrmap render map.json --svg map.svg"
@@ -14,7 +16,7 @@ def add_arguments(p) -> None:
     p.add_argument(
         "map", help="map document written by `asrmap replay --json` or fetched from asrmap/<robot>/map"
     )
-    p.add_argument("--svg", metavar="OUT", required=True, help="SVG file to write")
+    p.add_argument("--svg", metavar="OUT", type=output_file, required=True, help="SVG file to write")
 
 
 def run(args) -> int:
@@ -23,7 +25,7 @@ def run(args) -> int:
 
     try:
         doc = json.loads(Path(args.map).read_text(encoding="utf-8"))
-    except json.JSONDecodeError as e:
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise ValueError(f"{args.map} is not JSON ({e}); expected an asrmap/map/1 document") from e
     from_document(doc)  # refuses anything that is not an asrmap/map/1 document, naming the field
     write_svg(args.svg, doc, title=f"asrmap map {Path(args.map).name}")

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from mapper.cycle_params import CycleParams
-from service.argtypes import speed
+from service.argtypes import output_file, speed
 
 NAME = "replay"
 HELP = "feed a CARMEN log (.gz ok) to the mapper; print ASRs, cycles, precision, recall, scans/s"
@@ -23,10 +23,10 @@ EXAMPLE = (
 
 def add_arguments(p) -> None:
     p.add_argument("log", help="CARMEN log (FLASER/ROBOTLASER1/ODOM lines; .gz read transparently)")
-    p.add_argument("--json", metavar="OUT", help="write the map document (asrmap/map/1) here")
-    p.add_argument(
-        "--svg", metavar="OUT", help="write the picture (topological beside global metric map) here"
-    )
+    p.add_argument("--json", metavar="OUT", type=output_file,
+                   help="write the map document (asrmap/map/1) here")
+    p.add_argument("--svg", metavar="OUT", type=output_file,
+                   help="write the picture (topological beside global metric map) here")
     p.add_argument("--truth", metavar="LOG", help="a corrected log of the same run: its poses are the truth")
     p.add_argument(
         "--logged-poses",

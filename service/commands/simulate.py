@@ -10,7 +10,7 @@ import threading
 from dataclasses import replace
 from pathlib import Path
 
-from service.argtypes import positive
+from service.argtypes import output_file, positive
 from service.sim.simulator import DirectSim, SimParams, StackSim
 from service.sim.world import builtin_worlds, load_world
 
@@ -37,9 +37,9 @@ def add_arguments(p) -> None:
     p.add_argument("--direct", action="store_true",
                    help="no ptys, drivers or Zenoh: the mapper in-process on a simulated clock (as fast "
                         "as the computer allows, repeatable for a seed)")
-    p.add_argument("--svg", default="asrmap-map.svg", metavar="OUT",
+    p.add_argument("--svg", default="asrmap-map.svg", metavar="OUT", type=output_file,
                    help="picture of the map (default: %(default)s)")
-    p.add_argument("--json", default="asrmap-map.json", metavar="OUT",
+    p.add_argument("--json", default="asrmap-map.json", metavar="OUT", type=output_file,
                    help="the map document, asrmap/map/1 (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the range noise (default: 0)")
     p.add_argument("--robot", default="pioneer", help="robot name: the Zenoh key prefix asrmap/<robot>/")
