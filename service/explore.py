@@ -23,7 +23,9 @@ space is known. An unknown region is a run of consecutive ``unknown`` boundary e
 ``min_unknown`` long; it is looked at once, from the nearest point of the ASR shrunk by
 ``clearance``, then remembered (in the ASR's own frame, which never moves) so that regions that stay
 unknown (a max-range cut of a long hall, space behind furniture) do not hold exploration up; one
-whose space other ASRs already hold (``known_radius``) needs no look.
+whose space other ASRs already hold (``known_radius``) needs no look. A backtrack link whose
+crossing led into an ASR off the route (neither the next hop nor a duplicate of it) fails as an
+exit does: taken again it would only flip the robot between the two ASRs.
 
 **Controller** (:class:`Explorer`): turn to the target, then drive, steering to the free heading
 nearest the target (or, when the straight line to it leaves the ASR, nearest a point ahead on a
@@ -784,6 +786,15 @@ class Planner:
         return None
 
 
+def _place(view: MapView, asr_id: int) -> int:
+    """The ASR that ``asr_id`` is a duplicate of, followed to the first one (itself if none)."""
+    seen = {asr_id}
+    while (a := view.asrs.get(asr_id)) is not None and a.duplicate_of not in (None, *seen):
+        asr_id = a.duplicate_of
+        seen.add(asr_id)
+    return asr_id
+
+
 def exit_run(asr: ASR, ex: Exit) -> np.ndarray | None:
     """The boundary vertex indices (K,) of the run of exit edges whose chord ``ex`` is (from ``a`` to
     ``b`` along the boundary), or None (not the ASR's own exit, or the run is not all exit edges)."""
@@ -1302,6 +1313,16 @@ class Explorer:
                 and g.exit_mid is not None
                 and view.current is not None and view.current != prev and view.current <= newest):
             self.planner.crossed_into_known(g.asr, g.exit_mid)
+        if (g is not None and g.kind == "backtrack" and self.phase == "through" and g.asr == prev
+                and g.exit is not None and len(g.path) > 1 and view.current is not None
+                and view.current != prev and view.current <= newest
+                and _place(view, view.current) != _place(view, g.path[1])):
+            # The link does not lead where the route needs: crossing it again would only flip the
+            # robot between the two ASRs (``lab`` seed 4 and the stack's run 2, until the exit had
+            # been chosen ``max_attempts`` times, and again in each retry round).
+            self.planner.failed(g.asr, g.exit, g.exit_mid)
+            log.info("exploration: backtrack %s of ASR %s led into ASR %s, not %s: not taken again",
+                     g.exit, g.asr, view.current, g.path[1])
 
     def _new_space(self, view: MapView) -> bool:
         """Whether the map has gained an ASR whose centre (global frame) lies inside no earlier ASR

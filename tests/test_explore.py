@@ -551,6 +551,35 @@ def test_an_exit_crossed_into_an_asr_already_known_is_not_taken_again():
     assert fresh.planner.memory.crossed_at == {}
 
 
+def test_a_backtrack_link_that_leads_into_another_asr_is_not_taken_again():
+    # 1 -- 2 -- 3 in a row, 1 with an exit left; the robot backtracks from 3 through 3/0 towards 2,
+    # but the mapper puts it into ASR 4 (known, made there by an earlier crossing). Taking 3/0
+    # again would only flip it between 3 and 4: the link is given up at once.
+    a1 = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3), to=2), door(1, 1, (0, 1), (0, 3))])
+    a2 = room(2, 0, 0, 4, 4, origin=(4.0, 0.0, 0.0),
+              exits=[door(2, 0, (0, 1), (0, 3), to=1), door(2, 1, (4, 1), (4, 3), to=3)])
+    a3 = room(3, 0, 0, 4, 4, origin=(8.0, 0.0, 0.0), exits=[door(3, 0, (0, 1), (0, 3), to=2)])
+    a4 = room(4, 0, 0, 4, 4, origin=(6.0, 0.5, 0.0))
+    a2dup = room(5, 0, 0, 4, 4, origin=(4.0, 0.0, 0.0), dup=2)
+    none = np.zeros((0, 2))
+
+    def cross_into(landing, asrs):
+        ex = Explorer()
+        ex.step(view(asrs, 3, pose=(2.0, 2.0, 0.0)), none, 0.0)
+        assert ex.goal.kind == "backtrack" and ex.goal.exit == "3/0" and ex.goal.path == (3, 2, 1)
+        ex.step(view(asrs, 3, pose=(*ex.goal.target, 0.0)), none, 0.5)
+        assert ex.phase == "through"
+        ex.step(view(asrs, landing, pose=(1.0, 2.0, 0.0)), none, 1.0)
+        return ex
+
+    wrong = cross_into(4, [a1, a2, a3, a4])
+    assert wrong.planner.memory.failed_exits == {(3, "3/0")}
+    assert wrong.planner.backtrack_path(view([a1, a2, a3, a4], 3)) is None
+    # Landing where the route goes, or in a duplicate of that ASR, gives nothing up.
+    assert cross_into(2, [a1, a2, a3, a4]).planner.memory.failed_exits == set()
+    assert cross_into(5, [a1, a2, a3, a4, a2dup]).planner.memory.failed_exits == set()
+
+
 def test_after_a_crossing_the_robot_settles_beyond_the_exit_only_inside_the_new_asr():
     # Through exit 1/0 (east side of room 1) into ASR 2, whose frame sits on that side: the point
     # beyond the exit is the settle target, in 2's frame, when 2 holds it; when it lies outside 2
