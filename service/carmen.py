@@ -209,7 +209,9 @@ class CarmenReader:
     """Iterate over the records of a CARMEN log (plain or ``.gz``), skipping what it cannot read.
 
     ``counters`` (a :class:`collections.Counter`) counts records by message name, plus
-    ``"comment"``, ``"ignored"`` (message types not decoded here), ``"blank"`` and ``"malformed"``.
+    ``"comment"``, ``"ignored"`` (message types not decoded here), ``"blank"`` and ``"malformed"``,
+    and ``"truncated"`` once when a ``.gz`` ends early (what was read is kept, with a warning); a
+    ``.gz`` that is not gzip at all is a ``ValueError`` naming the file.
     Iterating again re-reads the file and the counters start over. ``quiet`` counts malformed lines
     without a warning each (for a quick look at a log's head that a full read reports anyway).
     """
@@ -222,11 +224,20 @@ class CarmenReader:
     def __iter__(self) -> Iterator[Record]:
         self.counters = collections.Counter()
         opener = gzip.open if self.path.suffix == ".gz" else open
-        with opener(self.path, "rt", encoding="ascii", errors="replace") as fh:
-            for no, text in enumerate(fh, start=1):
-                rec = self._parse(text, no)
-                if rec is not None:
-                    yield rec
+        no = 0
+        try:
+            with opener(self.path, "rt", encoding="ascii", errors="replace") as fh:
+                for no, text in enumerate(fh, start=1):
+                    rec = self._parse(text, no)
+                    if rec is not None:
+                        yield rec
+        except gzip.BadGzipFile as e:
+            raise ValueError(f"{self.path}: not a gzip file ({e}); a plain log must not end in .gz") from e
+        except EOFError:
+            # A .gz cut short (a copy interrupted): what was read stands, the rest is lost.
+            self.counters["truncated"] += 1
+            log.warning("%s: the compressed file ends early, after line %d: the rest is missing",
+                        self.path, no)
 
     def _parse(self, text: str, no: int) -> Record | None:
         f = text.split()

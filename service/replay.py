@@ -116,6 +116,9 @@ def replay(
                 truth_track = truth_track or (truth_from_log(path) if is_corrected(path) else None)
     if truth is not None and not isinstance(truth, Track):
         truth_track = truth_from_log(truth)
+        if not len(truth_track):  # refused before the replay, which would then score nothing
+            raise ValueError(f"{truth}: no robot pose could be read to use as the truth (FLASER or "
+                             "ROBOTLASER1 lines); the warnings above name the lines that were skipped")
     total = count_scans(path) if progress else 0
     mapper = Mapper(params, defer_views=True)  # pipelined: the same map, see mapper.mapper
     odometry = Track()

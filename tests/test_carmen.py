@@ -105,6 +105,26 @@ def test_malformed_lines_are_reported_with_file_and_line_then_skipped(tmp_path, 
     assert laser.angle_increment == pytest.approx(math.pi / 2)
 
 
+def test_a_gz_log_cut_short_keeps_what_was_read_and_says_so(tmp_path, caplog):
+    good = "FLASER 3 1.0 2.0 0.5 0.1 0.2 0.3 0.1 0.2 0.3 {t} host {t}"
+    whole = gzip.compress(("\n".join(good.format(t=5.0 + i) for i in range(2000)) + "\n").encode())
+    p = tmp_path / "cut.log.gz"
+    p.write_bytes(whole[: len(whole) // 2])  # a copy interrupted half way
+    reader = CarmenReader(p)
+    with caplog.at_level(logging.WARNING, logger="service.carmen"):
+        recs = list(reader)
+    assert 100 < len(recs) < 2000 and all(isinstance(r, LaserRecord) for r in recs)
+    assert reader.counters["truncated"] == 1
+    assert any("ends early" in r.getMessage() and str(p) in r.getMessage() for r in caplog.records)
+
+
+def test_a_gz_name_on_a_file_that_is_not_gzip_is_one_error_naming_it(tmp_path):
+    p = tmp_path / "plain.clf.gz"
+    p.write_text("FLASER 3 1.0 2.0 0.5 0.1 0.2 0.3 0.1 0.2 0.3 5.0 host 5.0\n")
+    with pytest.raises(ValueError, match=r"plain\.clf\.gz: not a gzip file"):
+        list(CarmenReader(p))
+
+
 def test_mapper_inputs_pairs_odometry_with_each_scan(shared_data):
     items = []
     for i, item in enumerate(mapper_inputs(shared_data / "intel-raw-first5505.clf.gz")):

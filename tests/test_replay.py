@@ -57,3 +57,14 @@ def test_a_log_without_a_readable_scan_is_one_line_exit_2_and_each_bad_line_is_n
     assert len(err) == 1 and "bad.log: no laser scan could be read" in err[0]
     warned = [r.getMessage() for r in caplog.records if "malformed" in r.getMessage()]
     assert sorted(w.split(":")[1] for w in warned) == ["1", "3"]  # lines 1 and 3, each once
+
+
+def test_a_truth_log_without_a_pose_is_refused_before_the_replay(logs, tmp_path, capsys):
+    raw, _ = logs
+    bad = tmp_path / "truth.log"
+    bad.write_text("ODOM 1 2 3 0 0 0 1.0 h 1.0\nFLASER x\n")
+    assert main(["replay", str(raw), "--truth", str(bad), "--no-progress"]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and "truth.log: no robot pose could be read to use as the truth" in err[0]
+    assert "ASRs:" not in captured.out  # nothing was replayed and thrown away
