@@ -14,6 +14,7 @@ entered from, method.md §5.5) only for ``from`` -> ``to``.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 from mapper.se2 import Pose, compose, inverse
@@ -163,11 +164,7 @@ class Topology:
 
     def canonical(self, asr: int) -> int:
         """The original an ASR duplicates (following chains), or itself."""
-        seen = set()
-        while asr in self.duplicate_of and asr not in seen:
-            seen.add(asr)
-            asr = self.duplicate_of[asr]
-        return asr
+        return original_of(asr, self.duplicate_of.get)
 
     def entered_from(self, asr: int) -> int | None:
         t = self.entered.get(asr)
@@ -178,3 +175,13 @@ def child_origin(parent_origin: Pose, crossing_pose: Pose) -> Pose:
     """Global pose of a new ASR: the parent's global pose ⊕ the robot pose in the parent's frame
     at the crossing (method.md §4). Both poses (m, m, rad)."""
     return compose(parent_origin, crossing_pose)
+
+
+def original_of(asr: int, duplicate_of: Callable[[int], int | None]) -> int:
+    """The original ASR that ``asr`` duplicates, following chains of duplicates, or ``asr`` itself;
+    ``duplicate_of(k)`` is the ASR that k duplicates, or None. A chain that comes round stops."""
+    seen = set()
+    while asr not in seen and (m := duplicate_of(asr)) is not None:
+        seen.add(asr)
+        asr = m
+    return asr

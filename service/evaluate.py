@@ -90,6 +90,19 @@ def truth_from_log(path: str | Path) -> Track:
     return tr
 
 
+def read_truth(truth: str | Path | Track) -> Track:
+    """The truth a replay is scored against: a :class:`Track` as given, else the logged poses of the
+    log named (:func:`truth_from_log`, world frame of that log). A log without a pose is a
+    ``ValueError`` naming it: read before a replay runs, which would otherwise score nothing."""
+    if isinstance(truth, Track):
+        return truth
+    track = truth_from_log(truth)
+    if not len(track):
+        raise ValueError(f"{truth}: no robot pose could be read to use as the truth (FLASER or "
+                         "ROBOTLASER1 lines); the warnings above name the lines that were skipped")
+    return track
+
+
 def is_corrected(path: str | Path, probe: int = 50) -> bool:
     """Whether a log is a corrected one with embedded raw increments: its laser lines are followed by
     a reset ``ODOM`` at the same pose with timestamp 0 (SOURCES.md)."""

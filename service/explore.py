@@ -57,6 +57,7 @@ import shapely
 from shapely.ops import nearest_points
 
 from mapper.se2 import Pose, compose, inverse, transform_points, wrap
+from mapper.topology import original_of
 from mapper.types import ASR, Exit
 
 log = logging.getLogger(__name__)
@@ -787,12 +788,8 @@ class Planner:
 
 
 def _place(view: MapView, asr_id: int) -> int:
-    """The ASR that ``asr_id`` is a duplicate of, followed to the first one (itself if none)."""
-    seen = {asr_id}
-    while (a := view.asrs.get(asr_id)) is not None and a.duplicate_of not in (None, *seen):
-        asr_id = a.duplicate_of
-        seen.add(asr_id)
-    return asr_id
+    """The original ASR that ``asr_id`` duplicates in ``view`` (itself if none): one place."""
+    return original_of(asr_id, lambda k: a.duplicate_of if (a := view.asrs.get(k)) is not None else None)
 
 
 def exit_run(asr: ASR, ex: Exit) -> np.ndarray | None:

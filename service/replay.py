@@ -24,7 +24,15 @@ from mapper.mapper import Mapper
 from mapper.params import MapperParams
 from mapper.types import Odometry, Scan
 from service.carmen import CarmenReader, LogFormatError, ParamRecord, mapper_inputs
-from service.evaluate import Evaluation, Track, evaluate, is_corrected, rebuild_corrected, truth_from_log
+from service.evaluate import (
+    Evaluation,
+    Track,
+    evaluate,
+    is_corrected,
+    read_truth,
+    rebuild_corrected,
+    truth_from_log,
+)
 
 log = logging.getLogger(__name__)
 
@@ -115,10 +123,7 @@ def replay(
                 mode = "logged poses"
                 truth_track = truth_track or (truth_from_log(path) if is_corrected(path) else None)
     if truth is not None and not isinstance(truth, Track):
-        truth_track = truth_from_log(truth)
-        if not len(truth_track):  # refused before the replay, which would then score nothing
-            raise ValueError(f"{truth}: no robot pose could be read to use as the truth (FLASER or "
-                             "ROBOTLASER1 lines); the warnings above name the lines that were skipped")
+        truth_track = read_truth(truth)
     total = count_scans(path) if progress else 0
     mapper = Mapper(params, defer_views=True)  # pipelined: the same map, see mapper.mapper
     odometry = Track()

@@ -43,7 +43,7 @@ from mapper.se2 import compose, inverse
 from mapper.types import Odometry, Scan
 from service.carmen import NO_RETURN_M, mapper_inputs
 from service.config import LASER_BAUDS, PIONEER_BAUDS
-from service.evaluate import Track, evaluate, is_corrected, rebuild_corrected, truth_from_log
+from service.evaluate import Track, evaluate, is_corrected, read_truth, rebuild_corrected, truth_from_log
 from service.replay import ReplayResult, params_for_log
 
 log = logging.getLogger(__name__)
@@ -341,6 +341,7 @@ def serial_replay(
     from service.pipeline import Service
 
     rec = recording or Recording.from_log(path, logged_poses)
+    given_truth = read_truth(truth) if truth else None  # a bad truth log is refused before the run
     if params is None:
         params = params_for_log(path) if path is not None else MapperParams()
     if speed == "max":
@@ -414,7 +415,7 @@ def serial_replay(
         profile={"wall": wall, "mapper": m.seconds},
     )
     res.scan_inputs = [dataclasses.replace(sc, t=to_log(sc.t)) for sc in m.scan_inputs]
-    truth_track = truth if isinstance(truth, Track) else (truth_from_log(truth) if truth else rec.truth)
+    truth_track = given_truth if given_truth is not None else rec.truth
     if truth_track is not None and len(truth_track) and len(odometry):
         gm = m.mapper.globalmap
         entered = {k: gm.topology.entered_from(k) for k in gm.asrs}

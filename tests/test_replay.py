@@ -63,8 +63,9 @@ def test_a_truth_log_without_a_pose_is_refused_before_the_replay(logs, tmp_path,
     raw, _ = logs
     bad = tmp_path / "truth.log"
     bad.write_text("ODOM 1 2 3 0 0 0 1.0 h 1.0\nFLASER x\n")
-    assert main(["replay", str(raw), "--truth", str(bad), "--no-progress"]) == 2
-    captured = capsys.readouterr()
-    err = captured.err.strip().splitlines()
-    assert len(err) == 1 and "truth.log: no robot pose could be read to use as the truth" in err[0]
-    assert "ASRs:" not in captured.out  # nothing was replayed and thrown away
+    for through in ([], ["--through-serial"]):  # directly, and through the emulators and the service
+        assert main(["replay", str(raw), "--truth", str(bad), "--no-progress", *through]) == 2
+        captured = capsys.readouterr()
+        err = captured.err.strip().splitlines()
+        assert len(err) == 1 and "truth.log: no robot pose could be read to use as the truth" in err[0]
+        assert "ASRs:" not in captured.out  # nothing was replayed and thrown away
