@@ -21,7 +21,7 @@ import collections
 import gzip
 import logging
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -205,6 +205,26 @@ def _check(rec: Record) -> None:
 _PARSERS = {"FLASER": _flaser, "ROBOTLASER1": _robotlaser1, "ODOM": _odom, "PARAM": _param}
 
 
+def log_lines(path: str | Path, truncated: Callable[[int], None] | None = None) -> Iterator[tuple[int, str]]:
+    """(1-based line number, text) of each line of a log, plain or ``.gz`` (ASCII, bad bytes replaced).
+
+    A ``.gz`` cut short (a copy interrupted) ends the lines where it ends: what was read stands and
+    ``truncated(last line number)`` is called, if given. A ``.gz`` that is not gzip at all is a
+    ``ValueError`` naming the file."""
+    path = Path(path)
+    opener = gzip.open if path.suffix == ".gz" else open
+    no = 0
+    try:
+        with opener(path, "rt", encoding="ascii", errors="replace") as fh:
+            for no, text in enumerate(fh, start=1):
+                yield no, text
+    except gzip.BadGzipFile as e:
+        raise ValueError(f"{path}: not a gzip file ({e}); a plain log must not end in .gz") from e
+    except EOFError:
+        if truncated is not None:
+            truncated(no)
+
+
 class CarmenReader:
     """Iterate over the records of a CARMEN log (plain or ``.gz``), skipping what it cannot read.
 
@@ -223,21 +243,15 @@ class CarmenReader:
 
     def __iter__(self) -> Iterator[Record]:
         self.counters = collections.Counter()
-        opener = gzip.open if self.path.suffix == ".gz" else open
-        no = 0
-        try:
-            with opener(self.path, "rt", encoding="ascii", errors="replace") as fh:
-                for no, text in enumerate(fh, start=1):
-                    rec = self._parse(text, no)
-                    if rec is not None:
-                        yield rec
-        except gzip.BadGzipFile as e:
-            raise ValueError(f"{self.path}: not a gzip file ({e}); a plain log must not end in .gz") from e
-        except EOFError:
-            # A .gz cut short (a copy interrupted): what was read stands, the rest is lost.
-            self.counters["truncated"] += 1
-            log.warning("%s: the compressed file ends early, after line %d: the rest is missing",
-                        self.path, no)
+        for no, text in log_lines(self.path, self._truncated):
+            rec = self._parse(text, no)
+            if rec is not None:
+                yield rec
+
+    def _truncated(self, after: int) -> None:
+        self.counters["truncated"] += 1
+        log.warning("%s: the compressed file ends early, after line %d: the rest is missing",
+                    self.path, after)
 
     def _parse(self, text: str, no: int) -> Record | None:
         f = text.split()

@@ -1,5 +1,6 @@
 """asrmap replay on small synthetic CARMEN logs: the library function and the command."""
 
+import gzip
 import json
 import xml.etree.ElementTree as ET
 
@@ -57,6 +58,20 @@ def test_a_log_without_a_readable_scan_is_one_line_exit_2_and_each_bad_line_is_n
     assert len(err) == 1 and "bad.log: no laser scan could be read" in err[0]
     warned = [r.getMessage() for r in caplog.records if "malformed" in r.getMessage()]
     assert sorted(w.split(":")[1] for w in warned) == ["1", "3"]  # lines 1 and 3, each once
+
+
+def test_a_gz_log_cut_short_replays_what_it_holds_with_the_progress_bar_on(logs, tmp_path, capsys, caplog):
+    # The progress bar counts the scans first (a text pass of its own): a cut .gz once ended that
+    # pass with an EOFError traceback before the replay began.
+    raw, _ = logs
+    whole = gzip.compress(raw.read_bytes())
+    cut = tmp_path / "cut.clf.gz"
+    cut.write_bytes(whole[: len(whole) // 2])
+    assert main(["replay", str(cut)]) == 0
+    captured = capsys.readouterr()
+    assert "ASRs:" in captured.out and "%" in captured.err
+    warned = [r.getMessage() for r in caplog.records if "ends early" in r.getMessage()]
+    assert len(warned) == 1 and str(cut) in warned[0]
 
 
 def test_a_truth_log_without_a_pose_is_refused_before_the_replay(logs, tmp_path, capsys):
