@@ -79,26 +79,26 @@ def _need(d: dict, key: str, where: str):
 def asr_from_dict(d: dict[str, Any]) -> ASR:
     """Read one ASR record; raises :class:`DocumentError` naming a missing or bad field."""
     where = f"asr {d.get('id', '?')}"
-    try:
-        boundary = np.array(_need(d, "boundary", where), dtype=float).reshape(-1, 2)
-    except (TypeError, ValueError):
-        raise DocumentError(f"{where}: boundary: expected [[x, y], ...] in metres") from None
+    boundary = _numbers(_need(d, "boundary", where), f"{where}: boundary", "[[x, y], ...] in metres", 2)
     edges = list(_need(d, "edges", where))
     if len(edges) != len(boundary):
         raise DocumentError(f"{where}: {len(edges)} edge labels for {len(boundary)} boundary vertices")
     bad = sorted(set(edges) - set(EDGE_LABELS))
     if bad:
         raise DocumentError(f"{where}: unknown edge labels {bad}; expected {list(EDGE_LABELS)}")
-    origin = _need(d, "origin", where)
-    centre = tuple(float(v) for v in _need(d, "centre", where))
-    exits = [
-        Exit(str(e["id"]), tuple(float(v) for v in e["a"]), tuple(float(v) for v in e["b"]), e.get("to"))
-        for e in d.get("exits", [])
-    ]
+    origin = _point(_need(d, "origin", where), f"{where}: origin", "[x, y, theta] (m, m, rad)", 3)
+    centre = _point(_need(d, "centre", where), f"{where}: centre", "[x, y] in metres")
+    exits = []
+    for k, e in enumerate(d.get("exits", [])):
+        at = f"{where}: exits[{k}]"
+        if not isinstance(e, dict):
+            raise DocumentError(f"{at}: expected an object, found {type(e).__name__}")
+        a, b = (_point(_need(e, key, at), f"{at}.{key}", "[x, y] in metres") for key in "ab")
+        exits.append(Exit(str(_need(e, "id", at)), a, b, e.get("to")))
     return ASR(
         id=int(_need(d, "id", where)),
         created=float(_need(d, "created", where)),
-        origin=(float(origin[0]), float(origin[1]), float(origin[2])),
+        origin=origin,
         boundary=boundary,
         edges=edges,
         centre=centre,
@@ -107,6 +107,28 @@ def asr_from_dict(d: dict[str, Any]) -> ASR:
         duplicate_of=d.get("duplicate_of"),
         scans=int(d.get("scans", 0)),
     )
+
+
+def _numbers(value: Any, what: str, expected: str, width: int, rows: int | None = None) -> np.ndarray:
+    """``value`` as finite floats of shape (rows, width) (a flat list of ``width`` numbers when
+    ``rows`` is 1), else :class:`DocumentError` naming ``what`` and the ``expected`` form."""
+    try:
+        a = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        a = None
+    if a is not None and rows == 1 and a.ndim == 1:
+        a = a[None, :]
+    if a is not None and a.size == 0 and rows is None:
+        a = a.reshape(0, width)
+    if a is None or a.ndim != 2 or a.shape[1] != width or (rows is not None and len(a) != rows) \
+            or not np.isfinite(a).all():
+        raise DocumentError(f"{what}: expected {expected}, finite numbers")
+    return a
+
+
+def _point(value: Any, what: str, expected: str, width: int = 2) -> tuple[float, ...]:
+    """One row of :func:`_numbers` as a tuple of Python floats."""
+    return tuple(float(v) for v in _numbers(value, what, expected, width, 1)[0])
 
 
 def _centre_rule(boundary: np.ndarray, centre) -> str:

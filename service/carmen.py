@@ -120,15 +120,29 @@ def _num(text: str, what: str) -> float:
     return x
 
 
+def _count(text: str, what: str) -> int:
+    """A whole number of readings; anything else is a malformed line."""
+    try:
+        return int(text)
+    except ValueError:
+        raise MalformedLine(f"{what} is {text!r}, not a whole number") from None
+
+
+def _ranges(fields: list[str]) -> np.ndarray:
+    """Ranges (m) as float32; one too large for float32 (1e308) is infinite: no return."""
+    with np.errstate(over="ignore"):
+        return np.asarray(fields, dtype=np.float32)
+
+
 def _pose(f: list[str], i: int, what: str = "pose") -> Pose:
     return (_num(f[i], what), _num(f[i + 1], what), _num(f[i + 2], what))
 
 
 def _flaser(f: list[str], line: int) -> LaserRecord:
-    n = int(f[1])
+    n = _count(f[1], "the number of readings")
     if n < 2 or len(f) != 2 + n + 6 + 3:
         raise MalformedLine(f"FLASER with {n} readings needs {2 + n + 9} fields, found {len(f)}")
-    ranges = np.asarray(f[2 : 2 + n], dtype=np.float32)
+    ranges = _ranges(f[2 : 2 + n])
     k = 2 + n
     amin, inc = flaser_geometry(n)
     return LaserRecord(
@@ -150,9 +164,9 @@ def _robotlaser1(f: list[str], line: int) -> LaserRecord:
     # ROBOTLASER1 laser_type start_angle fov angular_res max_range accuracy remission_mode n r1..rn
     #   n_rem [rem] laser_x y theta robot_x y theta tv rv forward_safety side_safety turn_axis ipc host logger
     start, res, max_range = _num(f[2], "start_angle"), _num(f[4], "angular_res"), _num(f[5], "max_range")
-    n = int(f[8])
+    n = _count(f[8], "the number of readings")
     k = 9 + n
-    n_rem = int(f[k])
+    n_rem = _count(f[k], "the number of remission values")
     k += 1 + n_rem
     if n < 2 or len(f) != k + 6 + 5 + 3:
         raise MalformedLine(f"ROBOTLASER1 with {n} readings needs {k + 14} fields, found {len(f)}")
@@ -161,7 +175,7 @@ def _robotlaser1(f: list[str], line: int) -> LaserRecord:
                             "is not a laser sweep")
     return LaserRecord(
         t=_num(f[k + 11], "timestamp"),
-        ranges=np.asarray(f[9 : 9 + n], dtype=np.float32),
+        ranges=_ranges(f[9 : 9 + n]),
         angle_min=start,
         angle_increment=res,
         max_range=min(max_range, NO_RETURN_M),
@@ -271,7 +285,8 @@ class CarmenReader:
         except (ValueError, IndexError) as e:
             self.counters["malformed"] += 1
             if not self.quiet:
-                log.warning("%s:%d: malformed %s line skipped: %s", self.path, no, f[0], e)
+                why = f"too few fields ({len(f) - 1} after {f[0]})" if isinstance(e, IndexError) else e
+                log.warning("%s:%d: malformed %s line skipped: %s", self.path, no, f[0], why)
             return None
         self.counters[f[0]] += 1
         return rec

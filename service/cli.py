@@ -15,6 +15,7 @@ import sys
 import serial
 
 from service import commands
+from service.argtypes import log_level
 
 log = logging.getLogger("asrmap")
 
@@ -38,7 +39,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="asrmap",
         description="ASR mapping for a Pioneer 2DX with a SICK LMS200 (Jefferies, Cosgrove, Baker & Yeap).",
     )
-    parser.add_argument("--log-level", default="INFO", help="logging level (DEBUG, INFO, WARNING, ...)")
+    parser.add_argument("--log-level", default="INFO", type=log_level,
+                        help="logging level: DEBUG, INFO, WARNING, ERROR or CRITICAL")
     parser.add_argument("--debug", action="store_true", help="show tracebacks for errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for mod in _command_modules():
@@ -58,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(
-        level=getattr(logging, str(args.log_level).upper(), logging.INFO),
+        level=getattr(logging, args.log_level),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )

@@ -87,12 +87,18 @@ def _port(v: Any) -> str:
 
 
 _CHUNK = re.compile(r"^[A-Za-z0-9_.-]+$")
+#: What a robot name must be, as the config and the command line say it.
+ROBOT_NAME_EXPECTED = "a name of letters, digits, '_', '-' or '.' (one Zenoh key chunk)"
+
+
+def is_robot_name(v: Any) -> bool:
+    """One Zenoh key chunk: no '/', no wildcards, not '@'-prefixed (a robot name in the key space)."""
+    return isinstance(v, str) and bool(_CHUNK.match(v))
 
 
 def _key_chunk(v: Any) -> str:
-    """One Zenoh key chunk: no '/', no wildcards, not '@'-prefixed (a robot name in the key space)."""
-    if not isinstance(v, str) or not _CHUNK.match(v):
-        raise _Bad("a name of letters, digits, '_', '-' or '.' (one Zenoh key chunk)")
+    if not is_robot_name(v):
+        raise _Bad(ROBOT_NAME_EXPECTED)
     return v
 
 
@@ -118,6 +124,12 @@ def _commands(v: Any) -> tuple[str, ...]:
 def _path(v: Any) -> str:
     if not isinstance(v, str):
         raise _Bad("a file path (string)")
+    return v
+
+
+def _file_name(v: Any) -> str:
+    if not isinstance(v, str) or not v.strip() or v.endswith(("/", "\\")) or v.strip() in (".", ".."):
+        raise _Bad("a file path (a non-empty string naming a file, not a directory)")
     return v
 
 
@@ -184,7 +196,7 @@ class ZenohConfig:
 class StoreConfig:
     state_dir: str = _key(_path, "state directory ($STATE_DIRECTORY when empty, else /var/lib/asrmap)",
                           default="")
-    path: str = _key(_path, "SQLite map store, relative to state_dir", default="map.sqlite")
+    path: str = _key(_file_name, "SQLite map store, relative to state_dir", default="map.sqlite")
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ import json
 import logging
 import os
 import queue
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -121,7 +122,7 @@ class Monitor:
         """The JSON object of an ``asrmap/<kind>/1`` payload, or None (see :meth:`_bad`)."""
         try:
             data = json.loads(payload)
-        except ValueError:
+        except (ValueError, RecursionError):  # RecursionError: arrays nested thousands deep
             self._bad(robot, kind, "not JSON")
             return None
         if not isinstance(data, dict) or data.get("schema") != f"{PREFIX}/{kind}/1":
@@ -323,10 +324,11 @@ class SvgWriter:
         return written
 
 
-def discover(mon: Monitor, wait: float) -> list[Update]:
-    """Updates gathered for ``wait`` seconds (the robots alive now and their maps)."""
+def discover(mon: Monitor, wait: float, stop: threading.Event | None = None) -> list[Update]:
+    """Updates gathered for ``wait`` seconds (the robots alive now and their maps), or until
+    ``stop`` is set (Ctrl-C, SIGTERM)."""
     out: list[Update] = []
     deadline = time.monotonic() + wait
-    while (left := deadline - time.monotonic()) > 0:
+    while (left := deadline - time.monotonic()) > 0 and not (stop is not None and stop.is_set()):
         out += mon.poll(min(left, 0.1))
     return out

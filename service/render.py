@@ -19,6 +19,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from mapper.se2 import transform_points
+from service.argtypes import write_output
 
 PANEL = 560.0
 MARGIN = 30.0
@@ -168,5 +169,5 @@ def render_svg(doc: dict, title: str | None = None) -> str:
 def write_svg(path: str | Path, doc: dict, title: str | None = None) -> Path:
     """Write :func:`render_svg` of ``doc`` to ``path``; returns the path."""
     p = Path(path)
-    p.write_text(render_svg(doc, title), encoding="utf-8")
+    write_output(p, render_svg(doc, title))
     return p

@@ -331,7 +331,8 @@ def serial_replay(
     they are due whatever the baud. ``state_dir``: the service's store directory (temporary by
     default); ``zenoh_listen``: its endpoints (default: a free loopback TCP port). ``progress(scans
     mapped, scans in the log, mapper s)``. ``timeout``: host seconds before giving up (default: the
-    log's duration / speed + 60 s). Raises ``RuntimeError`` when the service fails or never connects.
+    log's duration / speed + 60 s). Raises ``RuntimeError`` when the service fails, ``TimeoutError``
+    when it never connects.
     """
     from laser.playback import PlaybackLMS2xx
     from pioneer.emulator import PioneerEmulator
@@ -451,7 +452,7 @@ def _wait_connected(service, pio, las, stop: threading.Event, deadline: float) -
                 and las.streaming and service.odometry.latest() is not None):
             return
         if time.monotonic() > deadline:
-            raise RuntimeError(f"the service did not connect to the emulators within 30 s "
+            raise TimeoutError(f"the service did not connect to the emulators within 30 s "
                                f"(pioneer {service.pioneer.state}, laser {service.laser.state})")
         time.sleep(0.005)
 

@@ -62,6 +62,12 @@ class MapStore:
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
+        if self.path.exists() and not self.path.is_file():
+            raise StoreError(f"the map store {self.path} is a directory or a device, not a file; set "
+                             "[store] path to a file name inside [store] state_dir")
+        if self.path.parent.exists() and not self.path.parent.is_dir():
+            raise StoreError(f"cannot open the map store {self.path}: {self.path.parent} is not a "
+                             "directory; check [store] state_dir")
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._db = self._open()

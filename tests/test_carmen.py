@@ -201,3 +201,17 @@ def test_damaged_log_lines_never_escape_the_reader_or_the_mapper(tmp_path, text)
             pass
     finally:
         logging.disable(logging.NOTSET)
+
+
+def test_a_malformed_line_says_what_is_wrong_in_words(tmp_path, caplog):
+    p = tmp_path / "bad.clf"
+    p.write_text("FLASER\nFLASER 180.5 1 2\nROBOTLASER1 0 1\n"
+                 "FLASER 3 1e308 2.0 3.0 0 0 0 0 0 0 1.0 h 1.0\n")
+    with caplog.at_level(logging.WARNING):
+        recs = list(CarmenReader(p))
+    msgs = [r.getMessage() for r in caplog.records]
+    assert f"{p}:1: malformed FLASER line skipped: too few fields (0 after FLASER)" in msgs
+    assert any(f"{p}:2:" in m and "the number of readings is '180.5', not a whole number" in m for m in msgs)
+    assert any(f"{p}:3:" in m and "too few fields (2 after ROBOTLASER1)" in m for m in msgs)
+    # a range beyond float32 is no return, read without a numpy overflow warning
+    assert len(recs) == 1 and not np.isfinite(recs[0].ranges[0]) and len(msgs) == 3

@@ -53,6 +53,8 @@ def test_ports_accept_serial_urls(tmp_path):
         ('[zenoh]\nlisten = "tcp/127.0.0.1:7447"\n', "zenoh.listen", "a list of Zenoh endpoints", '"tcp/'),
         ('[zenoh]\nallow_commands = ["reboot"]\n', "zenoh.allow_commands", '"stop", "explore"', '["reboot"]'),
         ("[pipeline]\nscan_queue = 2.5\n", "pipeline.scan_queue", "an integer >= 1", "2.5"),
+        ('[store]\npath = ""\n', "store.path", "naming a file, not a directory", '""'),
+        ('[store]\npath = "maps/"\n', "store.path", "naming a file, not a directory", '"maps/"'),
         ("[laser]\nbaud = 38400\n", "laser.baud", "one of the keys port, baudrate", "an unknown key"),
         ("[lidar]\nport = 1\n", "lidar", "one of the sections", "an unknown section"),
         ("robot = 3\n", "robot", "a table [robot]", "3"),

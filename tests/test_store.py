@@ -101,8 +101,21 @@ def test_the_robots_pose_is_kept_apart_from_the_map(tmp_path):
 
 def test_an_unusable_state_directory_is_one_clear_error(tmp_path):
     (tmp_path / "file").write_text("not a directory")
-    with pytest.raises(StoreError, match=r"cannot open the map store .*file/map.sqlite: .*state_dir"):
+    with pytest.raises(StoreError, match=r"cannot open the map store .*file/map.sqlite: .*file is not a "
+                                         r"directory; check \[store\] state_dir"):
         MapStore(tmp_path / "file" / "map.sqlite")
+    assert (tmp_path / "file").read_text() == "not a directory"
+
+
+def test_a_store_path_that_is_a_directory_is_refused_and_never_moved_aside(tmp_path):
+    # Once, a directory there failed "SQLite's integrity check" and was renamed *.corrupt-<t>,
+    # with everything in it (a [store] path of "" is the state directory itself).
+    (tmp_path / "maps").mkdir()
+    (tmp_path / "maps" / "keep.txt").write_text("mine")
+    with pytest.raises(StoreError, match=r"is a directory or a device, not a file"):
+        MapStore(tmp_path / "maps")
+    assert (tmp_path / "maps" / "keep.txt").read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["maps"]
 
 
 _WRITER = textwrap.dedent("""

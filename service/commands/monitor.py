@@ -6,7 +6,7 @@ import signal
 import sys
 import threading
 
-from service.argtypes import non_negative, output_file
+from service.argtypes import non_negative, output_file, robot_or_every
 from service.monitor import Monitor, SvgWriter, discover, format_update
 
 NAME = "monitor"
@@ -15,7 +15,8 @@ EXAMPLE = "asrmap monitor --robot pioneer --connect tcp/192.168.1.20:7447 --svg 
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--robot", default="*", help="robot name to watch (default: every robot)")
+    p.add_argument("--robot", default="*", type=robot_or_every,
+                   help="robot name to watch (default: every robot)")
     p.add_argument("--connect", action="append", metavar="ENDPOINT",
                    help="Zenoh endpoint of the robot or a router (default tcp/127.0.0.1:7447; repeatable)")
     p.add_argument("--svg", metavar="OUT", type=output_file,
@@ -36,7 +37,9 @@ def run(args) -> int:
     svg = SvgWriter(args.svg) if args.svg else None
     with Monitor(connect, args.robot) as mon:
         if args.once:
-            updates = discover(mon, args.wait)
+            updates = discover(mon, args.wait, stop)
+            if stop.is_set():
+                return 130  # interrupted: what was heard so far is not an answer
             for u in updates:
                 if u.kind in ("alive", "map"):
                     print(format_update(u), flush=True)

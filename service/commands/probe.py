@@ -3,6 +3,8 @@ exit non-zero with one line saying what to check (the driver's error message).""
 
 from __future__ import annotations
 
+from service.argtypes import positive
+
 NAME = "probe"
 HELP = "hardware bring-up: connect to a device and print what it reports"
 EXAMPLE = "asrmap probe pioneer --port /dev/ttyUSB0   (or: asrmap probe pioneer --emulated)"
@@ -48,7 +50,7 @@ def add_arguments(p) -> None:
     p.add_argument("device", choices=sorted(DEVICES), help="which device to probe")
     p.add_argument("--port", help="serial device or pyserial URL (socket://host:port for ser2net/MobileSim)")
     p.add_argument("--baud", type=int, default=None, help="baud rate (default: the device's factory rate)")
-    p.add_argument("--seconds", type=float, default=2.0, help="how long to record what the device sends")
+    p.add_argument("--seconds", type=positive, default=2.0, help="how long to record what the device sends")
     p.add_argument("--emulated", action="store_true",
                    help="probe an emulated device started in-process on a pty (no hardware needed)")
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from service.argtypes import output_file
+from service.argtypes import distinct_files, output_file
 
 NAME = "render"
 HELP = "draw a saved map (asrmap/map/1 JSON) as SVG: topological map beside the global metric map"
@@ -23,12 +23,15 @@ def run(args) -> int:
     from mapper.document import from_document
     from service.render import write_svg
 
+    distinct_files({"MAP": args.map}, {"--svg": args.svg})
     try:
         doc = json.loads(Path(args.map).read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise ValueError(f"{args.map} is not JSON ({e}); expected an asrmap/map/1 document") from e
-    from_document(doc)  # refuses anything that is not an asrmap/map/1 document, naming the field
+    except RecursionError as e:
+        raise ValueError(f"{args.map}: arrays or objects nested too deeply; expected an asrmap/map/1 "
+                         "document") from e
+    md = from_document(doc)  # refuses anything that is not an asrmap/map/1 document, naming the field
     write_svg(args.svg, doc, title=f"asrmap map {Path(args.map).name}")
-    asrs = len(doc["asrs"])
-    print(f"wrote {args.svg}: {asrs} ASRs, {sum(1 for c in doc['cycles'] if c['accepted'])} cycles")
+    print(f"wrote {args.svg}: {len(md.asrs)} ASRs, {sum(1 for c in md.cycles if c.accepted)} cycles")
     return 0

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from mapper.cycle_params import CycleParams
-from service.argtypes import output_file, speed
+from service.argtypes import distinct_files, output_file, speed, write_output
 
 NAME = "replay"
 HELP = "feed a CARMEN log (.gz ok) to the mapper; print ASRs, cycles, precision, recall, scans/s"
@@ -111,6 +111,7 @@ def summary(res) -> list[str]:
 def run(args) -> int:
     from service.replay import params_for_log, replay  # the mapper is imported only when replaying
 
+    distinct_files({"LOG": args.log, "--truth": args.truth}, {"--json": args.json, "--svg": args.svg})
     params = params_for_log(args.log)
     if args.paper and hasattr(params, "cycles"):
         params = dataclasses.replace(params, cycles=CycleParams.paper())
@@ -131,7 +132,7 @@ def run(args) -> int:
               f"the line {c['scans_skipped']}, dropped by the pipeline {c['scans_dropped']}, mapped "
               f"{c['scans_mapped']}; motors {'stopped' if res.motors_stopped else 'NOT STOPPED'}")
     if args.json:
-        Path(args.json).write_text(json.dumps(res.document), encoding="utf-8")
+        write_output(args.json, json.dumps(res.document))
     if args.svg:
         from service.render import write_svg
 

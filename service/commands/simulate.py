@@ -4,13 +4,21 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import threading
 from dataclasses import replace
-from pathlib import Path
 
-from service.argtypes import output_file, positive
+from service.argtypes import (
+    distinct_files,
+    output_file,
+    positive,
+    robot_name,
+    seed,
+    speed_factor,
+    write_output,
+)
 from service.sim.simulator import DirectSim, SimParams, StackSim
 from service.sim.world import builtin_worlds, load_world
 
@@ -31,7 +39,7 @@ def add_arguments(p) -> None:
                         "unless --duration)")
     p.add_argument("--duration", type=positive, default=None, metavar="S",
                    help="stop after S simulated seconds (default: when exploration is done)")
-    p.add_argument("--fast", nargs="?", type=positive, const=FAST, default=None, metavar="FACTOR",
+    p.add_argument("--fast", nargs="?", type=speed_factor, const=FAST, default=None, metavar="FACTOR",
                    help=f"run FACTOR times faster than real time (default factor {FAST:g}): the emulators' "
                         "SIP cycle and scan rate and the robot's motion all scale together")
     p.add_argument("--direct", action="store_true",
@@ -41,8 +49,9 @@ def add_arguments(p) -> None:
                    help="picture of the map (default: %(default)s)")
     p.add_argument("--json", default="asrmap-map.json", metavar="OUT", type=output_file,
                    help="the map document, asrmap/map/1 (default: %(default)s)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the range noise (default: 0)")
-    p.add_argument("--robot", default="pioneer", help="robot name: the Zenoh key prefix asrmap/<robot>/")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the range noise (default: 0)")
+    p.add_argument("--robot", default="pioneer", type=robot_name,
+                   help="robot name: the Zenoh key prefix asrmap/<robot>/")
     p.add_argument("--listen", action="append", metavar="ENDPOINT",
                    help="Zenoh endpoint the service listens on, repeatable (default: tcp/127.0.0.1:7447)")
     p.add_argument("--state-dir", default=None, metavar="DIR",
@@ -63,6 +72,8 @@ def _progress(every: float):
 
 
 def run(args) -> int:
+    world_file = args.world if os.path.isfile(args.world) else None  # else a built-in world's name
+    distinct_files({"--world": world_file}, {"--json": args.json, "--svg": args.svg})
     world = load_world(args.world)
     params = SimParams(seed=args.seed, explore=args.explore, duration=args.duration)
     if not args.explore and args.duration is None:
@@ -82,7 +93,7 @@ def run(args) -> int:
         summary = sim.run()
     doc = sim.document
     if args.json:
-        Path(args.json).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+        write_output(args.json, json.dumps(doc, indent=1) + "\n")
         print(f"map document: {args.json}")
     if args.svg:
         try:

@@ -134,6 +134,8 @@ def load_world(name_or_path: str | Path) -> World:
         data = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise WorldError(f"{path}: cannot read the world file ({exc.strerror or exc})") from exc
+    except UnicodeDecodeError as exc:
+        raise WorldError(f"{path}: not a world file: not UTF-8 text (byte {exc.start})") from exc
     return parse_world(data, source=str(path))
 
 
@@ -147,6 +149,8 @@ def parse_world(text: str | dict[str, Any], source: str = "<world>") -> World:
         except json.JSONDecodeError as exc:
             where = f"line {exc.lineno} column {exc.colno}"
             raise WorldError(f"{source}: not JSON: {exc.msg} at {where}") from exc
+        except RecursionError as exc:
+            raise WorldError(f"{source}: not a world: arrays or objects nested too deeply") from exc
     return _Parser(source).world(doc)
 
 
