@@ -109,10 +109,11 @@ def render_svg(doc: dict, title: str | None = None) -> str:
     o.append(f'<line x1="{PANEL:.0f}" y1="0" x2="{PANEL:.0f}" y2="{h:.0f}" stroke="#ccc"/>')
 
     # Global metric map.
+    edges_of = {a["id"]: a["edges"] for a in doc["asrs"]}
     for k, (b, c, ex) in geo.items():
         fill = 'fill="url(#hatch)" fill-opacity="0.5"' if k in dups else 'fill="#7aa6d8" fill-opacity="0.18"'
         o.append(f'<polygon points="{right.path(b)}" {fill} stroke="none"><title>ASR {k}</title></polygon>')
-        labels = next(a["edges"] for a in doc["asrs"] if a["id"] == k)
+        labels = edges_of[k]
         for i, lab in enumerate(labels):
             o.append(
                 _line(right(b[i]), right(b[(i + 1) % len(b)]), EDGE_STYLE.get(lab, EDGE_STYLE["unknown"]))
