@@ -109,26 +109,23 @@ def asr_from_dict(d: dict[str, Any]) -> ASR:
     )
 
 
-def _numbers(value: Any, what: str, expected: str, width: int, rows: int | None = None) -> np.ndarray:
-    """``value`` as finite floats of shape (rows, width) (a flat list of ``width`` numbers when
-    ``rows`` is 1), else :class:`DocumentError` naming ``what`` and the ``expected`` form."""
+def _numbers(value: Any, what: str, expected: str, width: int) -> np.ndarray:
+    """``value`` as finite floats of shape (N, ``width``), else :class:`DocumentError` naming
+    ``what`` and the ``expected`` form."""
     try:
         a = np.array(value, dtype=float)
     except (TypeError, ValueError):
-        a = None
-    if a is not None and rows == 1 and a.ndim == 1:
-        a = a[None, :]
-    if a is not None and a.size == 0 and rows is None:
+        raise DocumentError(f"{what}: expected {expected}, finite numbers") from None
+    if a.ndim == 1 and a.size == 0:  # [] : no points
         a = a.reshape(0, width)
-    if a is None or a.ndim != 2 or a.shape[1] != width or (rows is not None and len(a) != rows) \
-            or not np.isfinite(a).all():
+    if a.ndim != 2 or a.shape[1] != width or not np.isfinite(a).all():
         raise DocumentError(f"{what}: expected {expected}, finite numbers")
     return a
 
 
 def _point(value: Any, what: str, expected: str, width: int = 2) -> tuple[float, ...]:
-    """One row of :func:`_numbers` as a tuple of Python floats."""
-    return tuple(float(v) for v in _numbers(value, what, expected, width, 1)[0])
+    """One point of ``width`` finite numbers (:func:`_numbers`) as a tuple of Python floats."""
+    return tuple(float(v) for v in _numbers([value], what, expected, width)[0])
 
 
 def _centre_rule(boundary: np.ndarray, centre) -> str:

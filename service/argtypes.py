@@ -1,4 +1,6 @@
-"""argparse value types shared by the subcommands: a bad value is argparse's one-line usage error."""
+"""argparse value types shared by the subcommands (a bad value is argparse's one-line usage error),
+and the checks and writing of the files the subcommands write (:func:`distinct_files`,
+:func:`write_output`): an error a user could cause is one line naming the option or file."""
 
 from __future__ import annotations
 

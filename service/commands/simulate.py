@@ -85,8 +85,6 @@ def run(args) -> int:
         summary = sim.run()
     else:
         speed = args.fast if args.fast is not None else 1.0
-        if speed <= 0:
-            raise ValueError(f"--fast {speed:g}: the factor must be positive")
         sim = StackSim(world, params, speed=speed, state_dir=args.state_dir, robot_name=args.robot,
                        progress=show, listen=tuple(args.listen) if args.listen else None)
         _stop_on_signals(sim)
