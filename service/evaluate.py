@@ -12,6 +12,11 @@ a sparse truth (a corrected scan every few seconds) still gives the pose at any 
 - A **revisit** is an ASR that truly overlaps an earlier ASR other than the one it was entered from;
   it is **detected** when an accepted cycle links it, or one of the next two ASRs created, to that
   earlier ASR or to a duplicate of it (or to the original it duplicates).
+- Each **transition's error**: for every ASR entered from another (its parent), the dead-reckoned
+  pose of its frame in the parent's (the crossing pose the mapper's odometry edge holds) against the
+  true one: the distance between the two frames (m), the position error (m) and the heading error
+  (rad). The drift gates of cycle checking model these (``CycleParams.odometry_sigma_xy`` and
+  ``odometry_sigma_theta``, per metre between the frames).
 - The ASR frames' error: RMS distance between the ASRs' global origins and their true positions
   after the best rigid 2D alignment of the two (the global frame is arbitrary), and the RMS of the
   relative heading error; for the realigned map and for the dead-reckoned one.
@@ -185,6 +190,10 @@ class Evaluation:
     compares ASRs placed this far off: beyond an ASR's size, no centre crosscheck can pass."""
     true_pairs: tuple[tuple[int, int, float], ...] = ()
     """(ASR, the earlier ASR it matched, the decision's time in s) of each true positive."""
+    transition_errors: tuple[tuple[float, float, float], ...] = ()
+    """(distance between the two frames in m, position error in m, heading error in rad, signed)
+    of each transition, parent to child, by the dead-reckoned frames against the true ones (see the
+    module docstring): what the odometry edges of the pose graph got wrong."""
 
     @property
     def precision(self) -> float:
@@ -257,7 +266,8 @@ def evaluate(
 
     ``odometry``: the odometry the mapper was given (odometry frame), to carry truth between its
     samples; ``entered_from``: ASR id -> the ASR it was entered from; ``origins_before``: the
-    dead-reckoned origins to compare with the document's (realigned) ones.
+    dead-reckoned origins to compare with the document's (realigned) ones, and whose transitions'
+    errors are measured (the document's origins when not given).
     """
     t0, t1 = truth.span()
     asrs = [a for a in doc["asrs"] if t0 - margin <= a["created"] <= t1 + margin]
@@ -296,6 +306,13 @@ def evaluate(
         targets = set().union(*(same_place(j) for j in earlier))
         if any(links.get(k, set()) & targets for k in ids[n : n + 3]):
             detected += 1
+    transitions = []
+    for i in ids:
+        j = entered_from.get(i)
+        if j in order:
+            e, t = between(tuple(before_of[j]), tuple(before_of[i])), between(frames[j], frames[i])
+            transitions.append((math.hypot(e[0], e[1]), math.hypot(e[0] - t[0], e[1] - t[1]),
+                                math.remainder(e[2] - t[2], math.tau)))
     est_after = np.array([doc["asrs"][[a["id"] for a in doc["asrs"]].index(k)]["origin"] for k in ids])
     true = np.array([frames[k] for k in ids])
     before = np.array([origins_before[k] for k in ids]) if origins_before else est_after
@@ -316,6 +333,7 @@ def evaluate(
         false_pairs=fp,
         revisit_drift=tuple(drift),
         true_pairs=tuple((c["asr"], c["matches"], float(c["time"])) for c in tp),
+        transition_errors=tuple(transitions),
     )
 
 

@@ -40,7 +40,7 @@ def test_asrmap_replay_prints_the_figures_and_writes_map_and_picture(logs, tmp_p
     )
     assert code == 0
     captured = capsys.readouterr()
-    for word in ("ASRs:", "cycles:", "precision:", "revisits:", "recall:", "scans/s"):
+    for word in ("ASRs:", "cycles:", "precision:", "revisits:", "recall:", "scans/s", "transition error"):
         assert word in captured.out
     assert "%" in captured.err  # the progress bar
     doc = json.loads(out_json.read_text())

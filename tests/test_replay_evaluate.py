@@ -115,3 +115,15 @@ def test_a_raw_log_is_not_taken_for_a_corrected_one(tmp_path):
     f = tmp_path / "raw.clf"
     f.write_text("".join(f"FLASER 180 {ranges} {k}.0 0 0 {k}.0 0 0 {k}.5 host {k}.5\n" for k in range(5)))
     assert not is_corrected(f)
+
+
+def test_each_transition_error_is_the_dead_reckoned_frame_against_the_true_one():
+    gm, truth, odo, entered = _loop(CycleParams.paper(), per_step=(0.0, 0.0, 0.0))
+    ev = evaluate(document_of(gm), truth, odo, entered, gm.odometry_origin)
+    assert len(ev.transition_errors) == 5  # six ASRs, each after the first entered from one
+    assert max(max(abs(p), abs(h)) for _, p, h in ev.transition_errors) < 1e-9
+    gm, truth, odo, entered = _loop(CycleParams.paper(), per_step=(0.15, -0.1, 0.02))
+    ev = evaluate(document_of(gm), truth, odo, entered, gm.odometry_origin)
+    # every crossing adds 0.02 rad of heading error, and the frames are metres apart
+    assert [h for _, _, h in ev.transition_errors] == pytest.approx([0.02] * 5, abs=1e-9)
+    assert all(d > 1.0 and p > 0.01 for d, p, _ in ev.transition_errors)

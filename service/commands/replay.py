@@ -82,6 +82,18 @@ def _drift_line(drift) -> str:
             f"90% {np.percentile(d, 90):.2f} m, within 2 m {np.mean(d <= 2.0):.0%}")
 
 
+def _transition_line(errors) -> str:
+    if not errors:
+        return "transition error: no transitions"
+    e = np.asarray(errors)
+    heading = np.degrees(np.abs(e[:, 2]))
+    per_m = np.abs(e[:, 2]) / np.maximum(e[:, 0], 0.2)
+    return (f"transition error (dead-reckoned frame in its parent's, {len(e)} transitions, median "
+            f"{np.median(e[:, 0]):.1f} m apart): position median {np.median(e[:, 1]):.2f} m, 90% "
+            f"{np.percentile(e[:, 1], 90):.2f} m; heading median {np.median(heading):.1f} deg, 90% "
+            f"{np.percentile(heading, 90):.1f} deg, RMS {np.sqrt(np.mean(per_m**2)):.3f} rad/m")
+
+
 def summary(res) -> list[str]:
     """The figures of a replay, one per line."""
     doc = res.document
@@ -101,6 +113,7 @@ def summary(res) -> list[str]:
             f"revisits: {ev.revisits}, detected: {ev.detected}, recall: {_fmt(ev.recall, True)} "
             f"({ev.evaluated} of {ev.asrs} ASRs inside the truth's time span)",
             _drift_line(ev.revisit_drift),
+            _transition_line(ev.transition_errors),
             f"ASR frame error (rigid fit, RMS): before realignment {ev.frame_error_before:.2f} m / "
             f"{ev.heading_error_before:.3f} rad, after {ev.frame_error_after:.2f} m / "
             f"{ev.heading_error_after:.3f} rad",
