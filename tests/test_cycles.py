@@ -291,6 +291,26 @@ def test_a_straight_corridor_piece_failing_the_crosscheck_is_not_aligned_onto_it
     assert gm.alignments[(3, 1)].constraint < 0.01
 
 
+def test_a_straight_pieces_alignment_keeps_the_dead_reckoned_place_along_its_open_axis():
+    from mapper.globalmap import _unslid
+
+    # Surfaces all along a corridor running at 30 deg: ICP's slide along it is not measured, so it
+    # is taken back; its move across the corridor and its rotation stay.
+    axis = math.radians(30.0)
+    u, n = np.array([math.cos(axis), math.sin(axis)]), np.array([-math.sin(axis), math.cos(axis)])
+    pts = np.array([[4.0, 1.0], [6.0, 2.2], [5.0, 3.1], [7.5, 3.0]])
+    slide = (*(1.7 * u + 0.12 * n), 0.0)  # 1.7 m along (the ICP slide), 0.12 m across
+    spin = (0.0, 0.0, 0.02)  # about the global origin
+    a = Alignment(compose(slide, spin), 0.01, 0.9, 1.7, constraint=0.0, axis=axis)
+    b = _unslid(a, pts)
+    move = transform_points(b.correction, pts).mean(axis=0) - pts.mean(axis=0)
+    spun = transform_points(spin, pts).mean(axis=0) - pts.mean(axis=0)
+    assert float(move @ u) == pytest.approx(0.0, abs=1e-12)
+    assert float(move @ n) == pytest.approx(0.12 + float(spun @ n), abs=1e-12)
+    assert b.correction[2] == pytest.approx(0.02) and b.shift == pytest.approx(float(np.hypot(*move)))
+    assert (b.constraint, b.axis, b.rms, b.inliers) == (a.constraint, a.axis, a.rms, a.inliers)
+
+
 def test_a_loop_edge_carries_information_only_along_the_axes_its_alignment_observed():
     from mapper.cycles import Alignment
 

@@ -264,6 +264,24 @@ def test_exit_ends_inserted_into_a_ring_pinched_within_rounding_leave_it_valid()
     assert shapely.Polygon(builder._ring()).is_valid
 
 
+def test_a_clip_that_comes_apart_at_a_neck_keeps_what_the_asr_held():
+    # A duplicate's growth is clipped to its match's area; what it held before stays. The union of
+    # the polygon before with the clipped growth came apart where two parts of it meet (lab seed 4,
+    # recorded in tests/data), and the part round the origin alone was kept: 27.9 -> 7.6 m², its
+    # cycle's match's centre then 3 m outside it.
+    import json
+    from pathlib import Path
+
+    d = json.loads((Path(__file__).parent / "data" / "clip_at_a_neck.json").read_text())
+    before = shapely.Polygon(d["before"])
+    area = shapely.Polygon(d["area"]["exterior"], d["area"]["holes"])
+    b = AsrBuilder(49, 0.0, (0.0, 0.0, 0.0), MapperParams())
+    b.polygon = shapely.Polygon(d["polygon"])
+    assert b.clip_growth(before, area, tuple(d["robot"]))
+    assert b.polygon.area >= before.area - 1e-9
+    assert b.polygon.covers(before.representative_point()) and b.polygon.is_valid
+
+
 def test_of_two_equally_short_covers_to_a_shared_corner_the_nearer_surface_in_the_sweep_wins():
     # Surfaces 1 and 2 meet at the corner C = (2, 0), the closest point of both to the occluding end
     # P = (0, 0): the cover P-C lands on surface 1's end (t = 1), the nearer across the gap.
