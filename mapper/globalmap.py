@@ -104,11 +104,16 @@ def _unslid(a: Alignment, pn: np.ndarray) -> Alignment:
     centroid's move along the axis is taken back. In the lab world such slides put 13 of 30 closed
     corridor pieces 0.3-1.9 m off along the corridor; without them, 1 of 30."""
     ux, uy = math.cos(a.axis), math.sin(a.axis)
-    move = transform_points(a.correction, pn).mean(axis=0) - pn.mean(axis=0)
+    move = _centroid_move(a.correction, pn)
     k = float(move[0] * ux + move[1] * uy)
     correction = compose((-k * ux, -k * uy, 0.0), a.correction)
-    shift = float(np.hypot(*(transform_points(correction, pn).mean(axis=0) - pn.mean(axis=0))))
+    shift = float(np.hypot(*_centroid_move(correction, pn)))
     return dataclasses.replace(a, correction=correction, shift=shift)
+
+
+def _centroid_move(correction: Pose, pts: np.ndarray) -> np.ndarray:
+    """How far (m, global frame) ``correction`` moves the centroid of ``pts`` (global frame)."""
+    return transform_points(correction, pts).mean(axis=0) - pts.mean(axis=0)
 
 
 class GlobalMap:
@@ -442,7 +447,7 @@ class GlobalMap:
             return a
         s = pin[0]
         correction = compose((s * math.cos(a.axis), s * math.sin(a.axis), 0.0), a.correction)
-        shift = float(np.hypot(*(transform_points(correction, pn).mean(axis=0) - pn.mean(axis=0))))
+        shift = float(np.hypot(*_centroid_move(correction, pn)))
         return dataclasses.replace(a, correction=correction, shift=shift, pinned=s)
 
     def _axis_sigma(self, n: int, m: int, axis: float) -> float | None:

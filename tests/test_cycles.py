@@ -9,7 +9,7 @@ import pytest
 from mapper.cycle_params import CycleParams
 from mapper.cycles import Alignment, SpatialIndex, align_points, exit_pin
 from mapper.events import CycleDetected, CycleRejected, MapRealigned
-from mapper.globalmap import GlobalMap
+from mapper.globalmap import GlobalMap, _unslid
 from mapper.se2 import between, compose, transform_points
 from mapper.types import Exit
 from tests.synthetic_asrs import box_asr, drift, drive
@@ -292,8 +292,6 @@ def test_a_straight_corridor_piece_failing_the_crosscheck_is_not_aligned_onto_it
 
 
 def test_a_straight_pieces_alignment_keeps_the_dead_reckoned_place_along_its_open_axis():
-    from mapper.globalmap import _unslid
-
     # Surfaces all along a corridor running at 30 deg: ICP's slide along it is not measured, so it
     # is taken back; its move across the corridor and its rotation stay.
     axis = math.radians(30.0)

@@ -6,8 +6,10 @@ laser offset (x 17 mm, y 8 mm) that the default MapperParams undo.
 
 from __future__ import annotations
 
+import json
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -269,9 +271,6 @@ def test_a_clip_that_comes_apart_at_a_neck_keeps_what_the_asr_held():
     # the polygon before with the clipped growth came apart where two parts of it meet (lab seed 4,
     # recorded in tests/data), and the part round the origin alone was kept: 27.9 -> 7.6 m², its
     # cycle's match's centre then 3 m outside it.
-    import json
-    from pathlib import Path
-
     d = json.loads((Path(__file__).parent / "data" / "clip_at_a_neck.json").read_text())
     before = shapely.Polygon(d["before"])
     area = shapely.Polygon(d["area"]["exterior"], d["area"]["holes"])
