@@ -644,3 +644,25 @@ def test_a_loop_closing_crossing_is_driven_like_an_exit_and_ends_in_the_new_asr(
     assert ex.goal is None or ex.goal.kind != "close"
     # one such crossing per ASR, and none from the ASR it made (no chain through known space)
     assert ex.planner.memory.closing_from == {4} and ex.planner.memory.closing_made == {5}
+
+
+def test_regions_looked_at_only_from_afar_are_visited_once_before_exploration_ends():
+    a = room(1, 0, 0, 6, 4, edges=("surface", "unknown", "surface", "surface"))
+    v = view([a], 1, pose=(4.5, 2.0, 0.0))
+    assert Planner(ExploreParams(visit_round=False)).observe(a, v.pose) == 2
+    planner = Planner(ExploreParams(visit_round=False))
+    planner.observe(a, v.pose)
+    assert planner.plan(v).kind == "done"  # switched off: both looked at from afar, nothing left
+    planner = Planner()
+    assert planner.observe(a, v.pose) == 2
+    g = planner.plan(v)  # nothing else left: the round that visits them begins
+    assert g.kind == "unknown" and planner.memory.visiting and planner.memory.retries == 1
+    assert planner.observe(a, v.pose) == 0  # in it, a look from afar retires nothing
+    # The controller does not take facing the region from 1.8 m as done: it drives there.
+    ex = Explorer()
+    ex.planner = planner
+    cmd = ex.step(view([a], 1, pose=(4.5, g.look_at[1], 0.0)), np.zeros((0, 2)), 0.0)
+    assert ex.goal.kind == "unknown" and cmd.v > 0.0
+    for m in planner.pending_unknown(a):  # each visited (reached and faced)
+        planner.looked_at(1, m)
+    assert planner.plan(v).kind == "done" and not planner.start_visiting()  # held once only
