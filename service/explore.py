@@ -167,9 +167,12 @@ class ExploreParams:
     recovery_turn: float = 1.2
     #: How many times exits that failed are all forgotten and tried again before exploration ends.
     retries: int = 2
-    #: Before it is done, visit once every unknown region that was only looked at from afar
-    #: (:meth:`Planner.observe`): driven to and faced, each in turn, the robot routed to their ASRs
-    #: over the topological map; the round is bounded like a retry round (``retry_budget``). A look
+    #: Before it is done (nothing left, or the last retry round out of time), visit once every
+    #: unknown region that was only looked at from afar (:meth:`Planner.observe`): driven to and
+    #: faced, each in turn, the robot routed to their ASRs over the topological map; the round is
+    #: bounded like a retry round (``retry_budget``). Entered also from a retry round out of time,
+    #: `lab` 0-19 closed 62 of 72 loops (13 runs meeting the whole goal) where entered only when
+    #: nothing was left 57 of 68 (12), and without the round 55 of 66 (12). A look
     #: from afar retires a region that stays unknown without a trip to it, and most such regions
     #: are space behind furniture; but a look past a chair's legs can see nothing of what they
     #: hide. With range noise σ 0.0101 m instead of 0.0100, `aliasing` seed 0 declared exploration
@@ -1307,9 +1310,15 @@ class Explorer:
         if mem.retries and self.goal is not None and self.goal.kind != "done" and (
             t - self._retry_start > self.p.retry_budget
         ):
-            log.info("exploration: retry round %d out of time (%.0f s): done", mem.retries,
-                     self.p.retry_budget)
-            self._set_goal(Goal("done", self.goal.asr), t)
+            if self.planner.start_visiting():  # a retry round out of time: the visiting round next
+                log.info("exploration: retry round %d out of time (%.0f s)", mem.retries - 1,
+                         self.p.retry_budget)
+                self._retry_round, self._retry_start = mem.retries, t
+                self._set_goal(self.planner.plan(view), t)
+            else:
+                log.info("exploration: retry round %d out of time (%.0f s): done", mem.retries,
+                         self.p.retry_budget)
+                self._set_goal(Goal("done", self.goal.asr), t)
         g = self.goal
         assert g is not None
         if g.kind == "done":

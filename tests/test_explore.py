@@ -666,3 +666,26 @@ def test_regions_looked_at_only_from_afar_are_visited_once_before_exploration_en
     for m in planner.pending_unknown(a):  # each visited (reached and faced)
         planner.looked_at(1, m)
     assert planner.plan(v).kind == "done" and not planner.start_visiting()  # held once only
+
+
+def test_a_retry_round_out_of_time_leads_into_the_visiting_round_then_ends():
+    # Room 1: an exit that failed, and an unknown edge at its west end looked at from afar.
+    exits = [door(1, 0, (6, 1), (6, 3))]
+    a = room(1, 0, 0, 6, 4, edges=("surface", "exit", "surface", "unknown"), exits=exits)
+    ex = Explorer(ExploreParams(retries=1, retry_budget=60.0, stuck_time=1e9, goal_timeout=1e9))
+    v = view([a], 1, pose=(1.5, 2.0, math.pi))
+    assert ex.planner.observe(a, v.pose) >= 1  # the west edge, from 1.5 m: retired from afar
+    ex.planner.failed(1, "1/0", (6.0, 2.0))
+    assert ex.step(v, np.zeros((0, 2)), 100.0).status != "done"  # the retry round begins
+    assert ex.goal.kind == "exit"
+    ex.step(v, np.zeros((0, 2)), 110.0)  # (ASR 1, seen first, is new space: the round's clock starts)
+    # the round out of time (after any manoeuvre under way): the visiting round instead of done
+    t = 171.0
+    while not ex.planner.memory.visiting and t < 181.0:
+        cmd = ex.step(v, np.zeros((0, 2)), t)
+        t += 0.1
+    assert not cmd.done and ex.planner.memory.visiting and ex.goal.kind == "unknown"
+    start = t  # the robot never gets there: that round's budget ends exploration
+    while not (cmd := ex.step(v, np.zeros((0, 2)), t)).done and t < 250.0:
+        t += 0.5
+    assert cmd.done and t > start + 59.0  # its own budget, not at once
