@@ -78,10 +78,11 @@ def _ring_truth(ring: np.ndarray) -> Track:
                      for (x, y), h in zip(ring, np.arctan2(step[:, 1], step[:, 0]), strict=True)])
 
 
-def _asr(truth: Track, k: int, created: float, box: tuple) -> dict:
-    """An ASR document entry whose outline is ``box`` (world frame), its frame the true pose then."""
+def _asr(truth: Track, k: int, created: float, box: tuple | shapely.Polygon) -> dict:
+    """An ASR document entry whose outline is ``box`` (a box's bounds or a polygon, world frame), its
+    frame the true pose then."""
     inv = inverse(truth.at(created))
-    b = shapely.box(*box)
+    b = box if isinstance(box, shapely.Polygon) else shapely.box(*box)
     return {"id": k, "created": created,
             "boundary": transform_points(inv, np.array(b.exterior.coords)[:-1]).tolist(),
             "centre": transform_points(inv, np.array([b.centroid.coords[0]]))[0].tolist()}
@@ -111,6 +112,31 @@ def test_a_closure_closes_the_loop_the_robot_drove_between_leaving_and_reenterin
     # Two loops driven, one closed.
     both = np.vstack([driven, returns(_ring(3.2, 8.5, 6.8, 11.9), HOLES)])
     assert loops_closed(both, closed) == (2, 1)
+
+
+def test_a_closure_closes_the_loop_through_the_space_round_an_island_not_across_the_island():
+    # The room round the east island is one space on three sides (ASR 1, south and west, and its
+    # duplicate 3, west and north) and another ASR on the fourth (2, east), as the room splits in
+    # `lab`. The robot leaves 1 eastwards into 2 and comes back into 3 on the north side: the map
+    # knows it went round the island, and the loop joined up through the space says so, where a
+    # straight step back across the east side would not.
+    ring = _ring(9.9, 2.6, 13.7, 6.4)
+    truth = _ring_truth(ring)
+    south, west = shapely.box(9.4, 2.1, 13.2, 3.3), shapely.box(9.4, 2.1, 10.6, 6.9)
+    north = shapely.box(9.4, 5.7, 13.2, 6.9)
+    leave = float(truth.t[np.flatnonzero(ring[:, 0] > 13.2)[0]])
+    back = float(truth.t[np.flatnonzero((ring[:, 1] > 6.3) & (ring[:, 0] < 13.2))[0]])
+    doc = {"asrs": [_asr(truth, 1, 0.0, south.union(west)), _asr(truth, 2, leave, (13.2, 2.1, 14.2, 6.9)),
+                    _asr(truth, 3, back, west.union(north))]}
+    doc["asrs"][2]["duplicate_of"] = 1
+    crossings = [(leave, 1, 2), (back, 2, 3)]
+    closed = closures(doc, ((3, 1, back),), crossings, truth, _outlines(doc, truth), HOLES)
+    driven = returns(ring, HOLES)
+    assert [list(v) for v in closed] == [list(driven[0])]
+    assert loops_closed(driven, closed) == (1, 1)
+    # Had 3 not been matched with 1, the crossing into it would close nothing.
+    del doc["asrs"][2]["duplicate_of"]
+    assert len(closures(doc, (), crossings, truth, _outlines(doc, truth), HOLES)) == 0
 
 
 def test_an_island_inside_one_asr_or_two_joined_ones_needs_no_closure():

@@ -13,7 +13,8 @@ hole inside it; going round a table island turns round that one alone.
   the two spaces, :func:`loops_closed`). The map closes a loop when it knows the robot is back in a
   space it left (:func:`closures`: a re-entry through a known transition, truly into that ASR, or a
   true cycle closure of the new ASR with the earlier one), the loop being the true path between
-  the robot's last crossing out of the space and its crossing back in; and it holds a loop without
+  the robot's last crossing out of the space and its crossing back in, joined up through the space;
+  and it holds a loop without
   any cycle when one ASR, or two joined by one transition, surround the hole (:func:`enclosed`: a
   table island in a room).
 
@@ -27,6 +28,7 @@ Everything here is in the world frame (the truth's): metres and radians.
 from __future__ import annotations
 
 import bisect
+import collections
 import math
 
 import numpy as np
@@ -137,7 +139,8 @@ def closures(doc: dict, pairs: tuple[tuple[int, int, float], ...], crossings: li
              slack: float = 0.5) -> np.ndarray:
     """The winding vectors (K, len(holes)) of the loops the map closed: each time it knew the robot
     was back in a space it had left, the true path from its last crossing out of that space to its
-    crossing back in, closed by a straight step across the space. It knew so
+    crossing back in, closed across the space (:func:`_across`: through its ASRs' true outlines,
+    so that the loop goes round whatever the space goes round). It knew so
     - when it re-entered a known ASR through a known transition, and the robot truly was inside
       that ASR's true outline (within ``slack``, m) on crossing in: a wrong re-entry closes nothing;
     - when a true cycle closure matched the new ASR the robot crossed into with an earlier one.
@@ -151,6 +154,7 @@ def closures(doc: dict, pairs: tuple[tuple[int, int, float], ...], crossings: li
     if len(truth) < 3 or not holes or not crossings:
         return _none(holes)
     same_place = places(doc)
+    filled = _filled(outline)
     xy = np.array([p[:2] for p in truth.poses], dtype=float)
     back: list[tuple[float, int]] = []  # (crossing in, the space's ASR)
     first_in: dict[int, float] = {}
@@ -169,8 +173,63 @@ def closures(doc: dict, pairs: tuple[tuple[int, int, float], ...], crossings: li
         if not left:
             continue
         path = xy[bisect.bisect_left(truth.t, left[-1]): bisect.bisect_right(truth.t, t_in)]
+        if len(path) >= 2:
+            space = shapely.union_all([filled[k] for k in here if k in filled])
+            path = np.vstack([path, _across(space, path[-1], path[0])])
         out.append([winding(path, c) for c in centres])
     return _distinct(np.array(out, dtype=np.int64).reshape(-1, len(holes)))
+
+
+def _filled(outline: dict[int, shapely.Geometry]) -> dict[int, shapely.Geometry]:
+    """Each ASR's true outline without its holes (world frame)."""
+    return {k: shapely.union_all([shapely.Polygon(p.exterior) for p in getattr(g, "geoms", [g])
+                                  if isinstance(p, shapely.Polygon) and not p.is_empty])
+            for k, g in outline.items()}
+
+
+def _across(space: shapely.Geometry, a: np.ndarray, b: np.ndarray, cell: float = 0.1,
+            reach: float = 0.5) -> np.ndarray:
+    """The points (K, 2; world frame, m) of a way from ``a`` to ``b`` through ``space`` (the true
+    outlines of the ASRs of one place), ends excluded: none when the straight step stays inside it
+    (within ``cell``), else a shortest way over a grid of ``cell`` (m), each end taken at the
+    nearest grid point inside the space within ``reach`` (m); none either when there is no such way.
+
+    A loop the map closed is the robot's true path out of a space and back in, joined up inside
+    that space: its crossing out and its crossing back in can lie on two sides of a table the space
+    goes round (the room on three sides of a table island, the fourth side another ASR), and the
+    straight step between them would cut the table, losing the turn round it."""
+    if space.is_empty or space.buffer(cell).covers(shapely.LineString([a, b])):
+        return np.zeros((0, 2))
+    x0, y0, x1, y1 = space.bounds
+    xs, ys = np.arange(x0, x1 + cell, cell), np.arange(y0, y1 + cell, cell)
+    gx, gy = np.meshgrid(xs, ys)
+    free = shapely.contains_xy(space, gx, gy)
+
+    def nearest(p: np.ndarray) -> tuple[int, int] | None:
+        d = np.where(free, np.hypot(gx - p[0], gy - p[1]), np.inf)
+        k = np.unravel_index(int(np.argmin(d)), d.shape)
+        return (int(k[0]), int(k[1])) if d[k] <= reach else None
+
+    start, goal = nearest(a), nearest(b)
+    if start is None or goal is None:
+        return np.zeros((0, 2))
+    came = {start: start}
+    todo = collections.deque([start])
+    while todo and goal not in came:
+        i, j = todo.popleft()
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                n = (i + di, j + dj)
+                if (0 <= n[0] < free.shape[0] and 0 <= n[1] < free.shape[1] and free[n]
+                        and n not in came):
+                    came[n] = (i, j)
+                    todo.append(n)
+    if goal not in came:
+        return np.zeros((0, 2))
+    way = [goal]
+    while way[-1] != start:
+        way.append(came[way[-1]])
+    return np.array([(gx[k], gy[k]) for k in reversed(way)])
 
 
 def enclosed(outline: dict[int, shapely.Geometry], crossings: list[tuple[float, int, int]],
@@ -182,9 +241,7 @@ def enclosed(outline: dict[int, shapely.Geometry], crossings: list[tuple[float, 
     one ASR's metric map, or two joined rigidly, already hold it."""
     if not outline or not holes:
         return _none(holes)
-    filled = {k: shapely.union_all([shapely.Polygon(p.exterior) for p in getattr(g, "geoms", [g])
-                                    if isinstance(p, shapely.Polygon) and not p.is_empty])
-              for k, g in outline.items()}
+    filled = _filled(outline)
     spaces = list(filled.values())
     joined = {tuple(sorted((a, b))) for _, a, b in crossings if a != b and a in filled and b in filled}
     spaces += [shapely.union(filled[a], filled[b]) for a, b in joined]
