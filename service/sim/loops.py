@@ -28,7 +28,6 @@ Everything here is in the world frame (the truth's): metres and radians.
 from __future__ import annotations
 
 import bisect
-import collections
 import math
 
 import numpy as np
@@ -36,6 +35,7 @@ import shapely
 from shapely.ops import polylabel
 
 from service.evaluate import Track, places, true_outlines
+from service.explore import plan_path
 from service.sim.physics import P2DX_RADIUS
 from service.sim.world import World
 
@@ -187,12 +187,12 @@ def _filled(outline: dict[int, shapely.Geometry]) -> dict[int, shapely.Geometry]
             for k, g in outline.items()}
 
 
-def _across(space: shapely.Geometry, a: np.ndarray, b: np.ndarray, cell: float = 0.1,
-            reach: float = 0.5) -> np.ndarray:
+def _across(space: shapely.Geometry, a: np.ndarray, b: np.ndarray, cell: float = 0.125) -> np.ndarray:
     """The points (K, 2; world frame, m) of a way from ``a`` to ``b`` through ``space`` (the true
-    outlines of the ASRs of one place), ends excluded: none when the straight step stays inside it
-    (within ``cell``), else a shortest way over a grid of ``cell`` (m), each end taken at the
-    nearest grid point inside the space within ``reach`` (m); none either when there is no such way.
+    outlines of the ASRs of one place): none when the straight step stays inside it (within
+    ``cell``), else the explorer's shortest way over a grid of ``cell`` m
+    (:func:`service.explore.plan_path`, each end within 4 cells of the space); none either when
+    there is no such way.
 
     A loop the map closed is the robot's true path out of a space and back in, joined up inside
     that space: its crossing out and its crossing back in can lie on two sides of a table the space
@@ -200,36 +200,8 @@ def _across(space: shapely.Geometry, a: np.ndarray, b: np.ndarray, cell: float =
     straight step between them would cut the table, losing the turn round it."""
     if space.is_empty or space.buffer(cell).covers(shapely.LineString([a, b])):
         return np.zeros((0, 2))
-    x0, y0, x1, y1 = space.bounds
-    xs, ys = np.arange(x0, x1 + cell, cell), np.arange(y0, y1 + cell, cell)
-    gx, gy = np.meshgrid(xs, ys)
-    free = shapely.contains_xy(space, gx, gy)
-
-    def nearest(p: np.ndarray) -> tuple[int, int] | None:
-        d = np.where(free, np.hypot(gx - p[0], gy - p[1]), np.inf)
-        k = np.unravel_index(int(np.argmin(d)), d.shape)
-        return (int(k[0]), int(k[1])) if d[k] <= reach else None
-
-    start, goal = nearest(a), nearest(b)
-    if start is None or goal is None:
-        return np.zeros((0, 2))
-    came = {start: start}
-    todo = collections.deque([start])
-    while todo and goal not in came:
-        i, j = todo.popleft()
-        for di in (-1, 0, 1):
-            for dj in (-1, 0, 1):
-                n = (i + di, j + dj)
-                if (0 <= n[0] < free.shape[0] and 0 <= n[1] < free.shape[1] and free[n]
-                        and n not in came):
-                    came[n] = (i, j)
-                    todo.append(n)
-    if goal not in came:
-        return np.zeros((0, 2))
-    way = [goal]
-    while way[-1] != start:
-        way.append(came[way[-1]])
-    return np.array([(gx[k], gy[k]) for k in reversed(way)])
+    way = plan_path(space, (float(a[0]), float(a[1])), (float(b[0]), float(b[1])), cell, 0.0)
+    return np.zeros((0, 2)) if way is None else way
 
 
 def enclosed(outline: dict[int, shapely.Geometry], crossings: list[tuple[float, int, int]],
