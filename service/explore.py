@@ -9,7 +9,9 @@ topological map offers no way there (the way out failed), it heads across the cu
 nearest unexplored exit of any ASR in the global frame (``goto``); when none is left, the exits that
 failed are retried (``retries`` rounds, each ending after ``retry_budget`` seconds without new
 space); then, once, the unknown regions it only looked at from afar are visited (``visit_round``,
-bounded like a retry round); then it is *done*.
+bounded like a retry round); then, once, the straight pieces of linked exits' runs are taken as
+exits of their own (``side_openings``: a doorway merged into the way back), bounded the same way;
+then it is *done*.
 An exit is crossed on its chord's normal, or, when its run of exit edges begins or ends with a wall
 seen at a grazing angle (a corridor's end seen from inside: a U of exit edges), through what is
 left between those arms (:func:`crossing`).
@@ -46,6 +48,7 @@ counter-clockwise), as P2OS VEL/RVEL take them after unit conversion.
 from __future__ import annotations
 
 import heapq
+import itertools
 import logging
 import math
 from collections import deque
@@ -226,6 +229,20 @@ class ExploreParams:
     #: in known space that matched nothing has unlinked exits into known space of its own.
     close_loops: bool = True
     close_min_hops: int = 3
+    #: A doorway merged into the way back (README, "Known faults"): when the doorway's exit edges
+    #: run on round a corner into the gap the robot came in by, the ASR's exit is the whole run, one
+    #: chord, linked back where the robot came from, and the doorway is never a target (`aliasing`
+    #: seed 8 ended after 250 s in room A, the corridor and room B unentered). With this on, a last
+    #: round (after the visiting round, bounded like it by ``retry_budget``) cuts each linked exit's
+    #: run where it turns more than ``side_turn`` (rad) from one edge to the next, and each straight
+    #: piece at least ``min_exit_width`` long whose space beyond is not known (``known_depths``) is
+    #: an exit of its own (:func:`side_openings`). Only the explorer cuts: the mapper's exits, and
+    #: so the replays of the logs, are unchanged; the robot going through the piece leaves the ASR
+    #: where no exit chord is, and the mapper opens an exit there. Offered from the start instead
+    #: of in a last round, the pieces changed the `lab` runs' paths (one false closure, `lab` seed
+    #: 15, in the first 13 runs).
+    side_openings: bool = True
+    side_turn: float = math.radians(60.0)
 
 
 # --- what the explorer reads ----------------------------------------------------------------------
@@ -316,6 +333,9 @@ class Memory:
     #: and whether the round that visits them (``ExploreParams.visit_round``) has begun.
     far: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
     visiting: bool = False
+    #: Whether the last round, through the side openings of linked exits
+    #: (``ExploreParams.side_openings``), has begun.
+    side_round: bool = False
     #: Exits seen shut (a surface right behind them, :meth:`Planner.shut_exits`), by midpoint per
     #: ASR (its frame); not retried: a wall does not move.
     shut_at: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
@@ -484,7 +504,7 @@ class Planner:
             return 0
         pts = transform_points(view.pose, points)  # into the ASR's frame
         n_shut = 0
-        for ex in asr.exits:
+        for ex in [*asr.exits, *self._side_openings(asr, _edges(view))]:
             if ex.to is not None or self._failed(asr, ex):
                 continue
             n, depth = self._geometry(asr, ex)
@@ -533,6 +553,26 @@ class Planner:
             mem.looked[asr_id] = [q for q in mem.looked.get(asr_id, []) if q not in far]
         log.info("exploration: visiting %d unknown regions looked at only from afar",
                  sum(len(v) for v in mem.far.values()))
+        return True
+
+    def start_side_round(self, view: MapView) -> bool:
+        """Begin the last round (``ExploreParams.side_openings``): from now on the side openings of
+        linked exits (:func:`side_openings`) are exits to explore, and the exits that failed are
+        tried again. False when the round has been held already or no ASR has an unexplored side
+        opening. It counts as a retry round (``Memory.retries``), so ``retry_budget`` bounds it."""
+        mem = self.memory
+        if not self.p.side_openings or mem.side_round:
+            return False
+        mem.side_round = True
+        edges = _edges(view)
+        n = sum(len([e for e in self._side_openings(a, edges) if not self.explored(view, a, e, edges)])
+                for a in view.asrs.values())
+        if not n:
+            return False
+        mem.retries += 1
+        mem.failed_exits.clear()
+        mem.failed_at.clear()
+        log.info("exploration: going through %d side openings of linked exits", n)
         return True
 
     def retire_known_unknown(self, view: MapView, asr: ASR) -> int:
@@ -681,8 +721,16 @@ class Planner:
     def unexplored_exits(self, view: MapView, asr: ASR, edges: dict | None = None) -> list[Exit]:
         """Unexplored exits of ``asr``, widest first."""
         edges = _edges(view) if edges is None else edges
-        todo = [e for e in asr.exits if not self.explored(view, asr, e, edges)]
+        todo = [e for e in [*asr.exits, *self._side_openings(asr, edges)]
+                if not self.explored(view, asr, e, edges)]
         return sorted(todo, key=lambda e: -e.width)
+
+    def _side_openings(self, asr: ASR, edges: dict) -> list[Exit]:
+        """The side openings (:func:`side_openings`) of ``asr``'s linked exits, in the last round."""
+        if not self.memory.side_round:
+            return []
+        return [s for e in asr.exits if e.to is not None or (asr.id, e.id) in edges
+                for s in side_openings(asr, e, self.p)]
 
     # -- the decision --------------------------------------------------------------------------
     def plan(self, view: MapView) -> Goal:
@@ -720,11 +768,11 @@ class Planner:
                 self.memory.failed_exits.clear()
                 self.memory.failed_at.clear()
                 return self.plan(view)
-            if self.start_visiting():
+            if self.start_visiting() or self.start_side_round(view):
                 return self.plan(view)
             return Goal("done", asr.id)
         hops, exit_id = path
-        ex = exit_of(view, asr, exit_id)
+        ex = exit_of(view, asr, exit_id, self.p)
         return self._through(view, asr, ex, "backtrack", free, hops)
 
     def closing_exit(self, view: MapView, asr: ASR, edges: dict | None = None) -> Exit | None:
@@ -998,11 +1046,54 @@ def _within_hops(edges: dict[tuple[int, str], int], start: int, hops: int) -> se
 
 
 BORROWED = "<"  # prefix of a borrowed exit id: "<" + source ASR + "|" + its exit id
+SIDE = "~"  # in a side opening's id: its exit's id + "~" + the piece's midpoint (ASR frame, cm)
 
 
-def exit_of(view: MapView, asr: ASR, exit_id: str) -> Exit | None:
+def side_openings(asr: ASR, ex: Exit, p: ExploreParams) -> list[Exit]:
+    """The straight pieces of ``ex``'s run of exit edges (ASR frame, m) that could be doorways of
+    their own (``ExploreParams.side_openings``): the run cut where it turns more than
+    ``side_turn``; the pieces at least ``min_exit_width`` long, when there are two or more pieces.
+    Each is an :class:`Exit` with no link, its id ``ex.id`` + ``SIDE`` + its midpoint (ASR frame,
+    whole cm): the same piece keeps its id while views move its ends a little (:func:`exit_of`).
+    A piece along a wall seen at a grazing angle (a corridor's U of exit edges) is one too: the
+    scan shows it shut (:meth:`Planner.shut_exits`) or the way through blocked, as for any exit
+    into a wall."""
+    idx = exit_run(asr, ex)
+    if idx is None or len(idx) < 3:
+        return []
+    pts = np.asarray(asr.boundary, dtype=float)[idx]
+    d = np.diff(pts, axis=0)
+    heading = np.arctan2(d[:, 1], d[:, 0])
+    turn = np.abs(np.angle(np.exp(1j * np.diff(heading))))
+    cuts = np.flatnonzero(turn > p.side_turn) + 1  # vertices (of pts) where a piece ends
+    if not len(cuts):
+        return []
+    bounds = [0, *cuts.tolist(), len(pts) - 1]
+    out = []
+    for i, j in itertools.pairwise(bounds):
+        a, b = pts[i], pts[j]
+        if float(np.hypot(*(b - a))) >= p.min_exit_width:
+            m = np.round(50.0 * (a + b)).astype(int)
+            out.append(Exit(f"{ex.id}{SIDE}{m[0]},{m[1]}", (float(a[0]), float(a[1])),
+                            (float(b[0]), float(b[1]))))
+    return out
+
+
+def exit_of(view: MapView, asr: ASR, exit_id: str, p: ExploreParams | None = None) -> Exit | None:
     """Exit ``exit_id`` of ``asr``; a borrowed id (see :func:`_edges`) gives the other ASR's exit
-    carried into this ASR's frame through the global frame both are placed in."""
+    carried into this ASR's frame through the global frame both are placed in; a side opening's id
+    (:func:`side_openings`, with ``p``) the piece of its exit's run nearest the midpoint it names."""
+    if SIDE in exit_id:  # a side opening: the piece of its exit's run nearest where it was (0.5 m)
+        base_id, _, where = exit_id.partition(SIDE)
+        base = exit_of(view, asr, base_id)
+        x, _, y = where.partition(",")
+        if base is None:
+            return None
+        at = np.array([float(x), float(y)]) / 100.0
+        near = [(float(np.hypot(*(np.asarray(e.midpoint) - at))), e)
+                for e in side_openings(asr, base, p or ExploreParams())]
+        d, e = min(near, key=lambda q: q[0], default=(math.inf, None))
+        return None if e is None or d > 0.5 else Exit(exit_id, e.a, e.b)
     if not exit_id.startswith(BORROWED):
         return next((e for e in asr.exits if e.id == exit_id), None)
     src_id, _, src_exit = exit_id[len(BORROWED):].partition("|")
@@ -1217,7 +1308,7 @@ class Explorer:
             ex = next((e for e in other.exits if e.id == g.exit), None) if other is not None else None
             return ex is not None and not self.planner.explored(view, other, ex)  # type: ignore[arg-type]
         if g.kind in ("exit", "close", "backtrack"):
-            ex = exit_of(view, asr, g.exit)  # type: ignore[arg-type]
+            ex = exit_of(view, asr, g.exit, self.p)  # type: ignore[arg-type]
             if ex is None:
                 return False
             if g.kind == "exit":
@@ -1310,7 +1401,7 @@ class Explorer:
         if mem.retries and self.goal is not None and self.goal.kind != "done" and (
             t - self._retry_start > self.p.retry_budget
         ):
-            if self.planner.start_visiting():  # a retry round out of time: the visiting round next
+            if self.planner.start_visiting() or self.planner.start_side_round(view):  # the next round
                 log.info("exploration: retry round %d out of time (%.0f s)", mem.retries - 1,
                          self.p.retry_budget)
                 self._retry_round, self._retry_start = mem.retries, t

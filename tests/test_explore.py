@@ -18,6 +18,7 @@ from service.explore import (
     free_distance,
     safety_limit,
     scan_points,
+    side_openings,
     unknown_runs,
 )
 from service.sim.physics import Body
@@ -115,6 +116,44 @@ def test_an_exit_named_by_a_link_is_explored():
     b = room(2, 0, 0, 3, 3, exits=[door(2, 0, (0, 1), (0, 2))])
     links = [LinkRef(2, "2/0", 1, "1/0")]  # two-way: 1/0 leads back to 2
     assert Planner().plan(view([a, b], 1, links=links)).kind == "done"
+
+
+def _doorway_merged_into_the_way_back():
+    """ASR 2 (0..4 x 0..1.5) entered from ASR 1 (north of it) through a gap on its north side; the
+    doorway on its east side (x = 4, y 0.3..1.5) and that gap are one run of exit edges, one chord
+    (4, 0.3)-(2.5, 1.5), linked back to ASR 1."""
+    b = np.array([[0, 0], [4, 0], [4, 0.3], [4, 1.5], [2.5, 1.5], [0, 1.5]], dtype=float)
+    edges = ["surface", "surface", "exit", "exit", "surface", "surface"]
+    two = ASR(2, 2.0, (0.0, 0.0, 0.0), b, edges, (2.0, 0.75), exits=[door(2, 0, (4, 0.3), (2.5, 1.5), to=1)])
+    one = room(1, 0, 1.5, 4, 4.5, edges=("exit", "surface", "surface", "surface"),
+               exits=[door(1, 0, (2.5, 1.5), (4, 1.5), to=2)])
+    return view([one, two], 2, pose=(2.0, 0.75, 0.0), links=[LinkRef(1, "1/0", 2, "2/0")])
+
+
+def test_a_doorway_merged_into_the_way_back_is_an_opening_of_its_own():
+    v = _doorway_merged_into_the_way_back()
+    two = v.asrs[2]
+    pieces = side_openings(two, two.exits[0], P)
+    assert [(p.a, p.b) for p in pieces] == [((4.0, 0.3), (4.0, 1.5)), ((4.0, 1.5), (2.5, 1.5))]
+    # The piece into ASR 1's space is known; the doorway is the one to go through, eastwards.
+    g = Planner().plan(v)
+    assert g.kind == "exit" and g.exit == pieces[0].id and g.through[0] > 4.0
+    assert Planner(ExploreParams(side_openings=False)).plan(v).kind == "done"
+
+
+def test_a_side_opening_keeps_its_id_while_its_ends_move_a_little():
+    v = _doorway_merged_into_the_way_back()
+    two = v.asrs[2]
+    gid = side_openings(two, two.exits[0], P)[0].id
+    b = np.array(two.boundary)
+    b[2] = (4.0, 0.32)  # the next view moved the jamb by 2 cm; the exit's chord moved with it
+    moved = ASR(2, 2.0, two.origin, b, two.edges, two.centre,
+                exits=[door(2, 0, (4, 0.32), (2.5, 1.5), to=1)])
+    v.asrs[2] = moved
+    from service.explore import exit_of
+    got = exit_of(v, moved, gid, P)
+    assert got is not None and got.a == (4.0, 0.32) and got.b == (4.0, 1.5)
+    assert exit_of(v, moved, "2/0~0,0", P) is None  # no piece there
 
 
 def test_when_all_exits_are_explored_it_backtracks_to_the_nearest_asr_with_one_left():

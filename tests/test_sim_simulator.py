@@ -262,3 +262,15 @@ def test_a_pocket_behind_a_chair_is_not_the_whole_world():
     two of three regions unentered; visiting what was only looked at from afar finds the way on."""
     r = DirectSim(load_world("aliasing"), SimParams(seed=0, sigma=0.0101)).run()
     assert r.finished and r.regions_missed == [] and r.false_cycles == 0
+
+
+def test_a_doorway_merged_into_the_way_back_is_still_gone_through():
+    """`aliasing` seed 8: room A's second ASR has the doorway's exit edges run on round the corner
+    into the gap the robot came in by, one exit chord linked back to the first ASR. Exploration
+    ended after 250 s in room A (the corridor and room B unentered) until the explorer took the
+    straight pieces of a linked exit's run as openings of their own (``side_openings``)."""
+    world = load_world("aliasing")
+    off = DirectSim(world, SimParams(seed=8, explore_params=ExploreParams(side_openings=False))).run()
+    assert off.finished and off.regions_missed == ["corridor", "room B"]
+    on = DirectSim(world, SimParams(seed=8)).run()
+    assert on.finished and on.regions_missed == [] and on.false_cycles == 0
