@@ -504,7 +504,8 @@ class Planner:
             return 0
         pts = transform_points(view.pose, points)  # into the ASR's frame
         n_shut = 0
-        for ex in [*asr.exits, *self._side_openings(asr, _edges(view))]:
+        side = self._side_openings(asr, _edges(view)) if self.memory.side_round else []
+        for ex in [*asr.exits, *side]:
             if ex.to is not None or self._failed(asr, ex):
                 continue
             n, depth = self._geometry(asr, ex)
