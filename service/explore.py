@@ -60,7 +60,7 @@ import numpy as np
 import shapely
 from shapely.ops import nearest_points
 
-from mapper.se2 import Pose, compose, inverse, transform_points, wrap
+from mapper.se2 import Pose, compose, inverse, transform_points, wrap, wrap_array
 from mapper.topology import original_of
 from mapper.types import ASR, Exit
 
@@ -564,17 +564,21 @@ class Planner:
         mem = self.memory
         if not self.p.side_openings or mem.side_round:
             return False
-        mem.side_round = True
+        mem.side_round = True  # held once; and _side_openings gives them only from now on
         edges = _edges(view)
         n = sum(len([e for e in self._side_openings(a, edges) if not self.explored(view, a, e, edges)])
                 for a in view.asrs.values())
         if not n:
             return False
         mem.retries += 1
-        mem.failed_exits.clear()
-        mem.failed_at.clear()
+        self._forget_failures()
         log.info("exploration: going through %d side openings of linked exits", n)
         return True
+
+    def _forget_failures(self) -> None:
+        """Forget the exits that failed, so that a new round tries them again."""
+        self.memory.failed_exits.clear()
+        self.memory.failed_at.clear()
 
     def retire_known_unknown(self, view: MapView, asr: ASR) -> int:
         """Mark the pending unknown regions of ``asr`` whose space is already inside other ASRs as
@@ -766,8 +770,7 @@ class Planner:
                 self.memory.retries += 1
                 log.info("exploration: retrying %d exits that failed (round %d of %d)",
                          len(self.memory.failed_exits), self.memory.retries, self.p.retries)
-                self.memory.failed_exits.clear()
-                self.memory.failed_at.clear()
+                self._forget_failures()
                 return self.plan(view)
             if self.start_visiting() or self.start_side_round(view):
                 return self.plan(view)
@@ -1065,7 +1068,7 @@ def side_openings(asr: ASR, ex: Exit, p: ExploreParams) -> list[Exit]:
     pts = np.asarray(asr.boundary, dtype=float)[idx]
     d = np.diff(pts, axis=0)
     heading = np.arctan2(d[:, 1], d[:, 0])
-    turn = np.abs(np.angle(np.exp(1j * np.diff(heading))))
+    turn = np.abs(wrap_array(np.diff(heading)))
     cuts = np.flatnonzero(turn > p.side_turn) + 1  # vertices (of pts) where a piece ends
     if not len(cuts):
         return []

@@ -15,6 +15,7 @@ from service.explore import (
     LinkRef,
     MapView,
     Planner,
+    exit_of,
     free_distance,
     safety_limit,
     scan_points,
@@ -150,7 +151,6 @@ def test_a_side_opening_keeps_its_id_while_its_ends_move_a_little():
     moved = ASR(2, 2.0, two.origin, b, two.edges, two.centre,
                 exits=[door(2, 0, (4, 0.32), (2.5, 1.5), to=1)])
     v.asrs[2] = moved
-    from service.explore import exit_of
     got = exit_of(v, moved, gid, P)
     assert got is not None and got.a == (4.0, 0.32) and got.b == (4.0, 1.5)
     assert exit_of(v, moved, "2/0~0,0", P) is None  # no piece there
