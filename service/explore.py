@@ -1273,14 +1273,34 @@ class Explorer:
         if goal.kind not in ("exit", "close", "backtrack", "goto") or goal.exit is None or goal.asr is None:
             return False
         key = (self.planner.memory.retries, goal.path[-1] if goal.kind == "goto" else goal.asr, goal.exit)
+        return self._attempt(key) > self.p.max_attempts
+
+    def _attempt(self, key: tuple) -> int:
+        """Count an attempt at ``key`` now; returns the attempts so far. Attempts in quick succession
+        (an unknown region came and went) are one; an attempt is timed from its first choice, or a
+        chain of choices (the mapper flipping between two ASRs every second) would be one for ever."""
         n, start = self._attempts.get(key, (0, -math.inf))
-        # Choices in quick succession (an unknown region came and went) are one attempt; an attempt
-        # is timed from its first choice, or a chain of choices (the mapper flipping between two
-        # ASRs every second) would be one attempt for ever.
         if self._t - start >= self.p.attempt_spacing:
             n, start = n + 1, self._t
         self._attempts[key] = (n, start)
-        return n > self.p.max_attempts
+        return n
+
+    def _left_for_unknown(self, asr: ASR) -> None:
+        """The robot left ``asr`` on its way to one of its unknown regions. Once it has done so
+        ``max_attempts`` times in a round, the way to its regions leaves it (two ASRs of one space,
+        each sending the robot into the other): its pending regions are given up, to be seen from
+        elsewhere. A whole-stack `lab` run (seed 0) flipped so between ASRs 2 and 3 north of a table
+        island for 800 s, giving up every exit of the map in turn, and ended with 1 of 7 regions
+        entered."""
+        if self._attempt((self.planner.memory.retries, "left", asr.id)) < self.p.max_attempts:
+            return
+        pending = self.planner.pending_unknown(asr)
+        for m in pending:
+            self.planner.looked_at(asr.id, m)
+        if pending:
+            self.counts["failed"] += 1
+            log.info("exploration: gave up %d unknown regions of ASR %s (left it %d times on the way)",
+                     len(pending), asr.id, self.p.max_attempts)
 
     def _give_up(self, why: str) -> None:
         g = self.goal
@@ -1447,6 +1467,9 @@ class Explorer:
         if (g is not None and g.kind == "close" and self.phase == "through" and g.asr == prev
                 and view.current is not None and view.current > newest):
             self.planner.memory.closing_made.add(view.current)
+        if (g is not None and g.kind == "unknown" and g.asr == prev and prev in view.asrs
+                and view.current is not None and view.current != prev):
+            self._left_for_unknown(view.asrs[prev])
         if (g is not None and g.kind == "exit" and self.phase == "through" and g.asr == prev
                 and g.exit_mid is not None
                 and view.current is not None and view.current != prev and view.current <= newest):

@@ -473,6 +473,28 @@ def test_an_exit_chosen_again_every_few_seconds_is_given_up_after_max_attempts()
     assert given_up_at >= P.max_attempts * P.attempt_spacing
 
 
+def test_unknown_regions_whose_way_leaves_their_asr_again_and_again_are_given_up():
+    # Two ASRs of one space (1 with an unknown west wall, 2 over it): on its way to 1's regions the
+    # robot crosses into 2, whose plan sends it back, every 15 s. After max_attempts such leavings
+    # 1's regions are given up; before, none is.
+    west_unknown = ("surface", "surface", "surface", "unknown")
+    a1 = room(1, 0, 0, 4, 4, edges=west_unknown, exits=[door(1, 0, (4, 1), (4, 3), to=2)])
+    a2 = room(2, 0, 0, 4, 4, exits=[door(2, 0, (0, 1), (0, 3), to=1)])
+    ex = Explorer()
+    none = np.zeros((0, 2))
+    assert ex.planner.pending_unknown(a1)
+    left = 0
+    for t in np.arange(0.0, 200.0, 0.5):
+        cur = 1 if (t % 15.0) < 12.0 else 2
+        before = ex.goal
+        ex.step(view([a1, a2], cur, pose=(3.0, 2.0, 0.0)), none, float(t))
+        if cur == 2 and before is not None and before.kind == "unknown" and before.asr == 1:
+            left += 1
+            assert bool(ex.planner.pending_unknown(a1)) == (left < P.max_attempts)
+    assert left >= P.max_attempts
+    assert not ex.planner.pending_unknown(a1)
+
+
 def test_a_stall_reported_right_after_the_motion_changed_belongs_to_the_motion_before():
     """P2OS reports stall bits with the 10 Hz SIP: a robot that was pushing into a wall still reports
     the stall in the first SIP after it was told to pull away. That stall must not end the escape
