@@ -28,7 +28,9 @@ space is known. An unknown region is a run of consecutive ``unknown`` boundary e
 unknown (a max-range cut of a long hall, space behind furniture) do not hold exploration up; one
 whose space other ASRs already hold (``known_radius``) needs no look. A backtrack link whose
 crossing led into an ASR off the route (neither the next hop nor a duplicate of it) fails as an
-exit does: taken again it would only flip the robot between the two ASRs.
+exit does: taken again it would only flip the robot between the two ASRs. A link whose two exits
+lie more than ``LINK_GAP`` apart in the global frame is travelled, both ways, through the narrower
+of the two: the wider is an occlusion the mapper took for an entrance, not the doorway crossed.
 
 **Controller** (:class:`Explorer`): turn to the target, then drive, steering to the free heading
 nearest the target (or, when the straight line to it leaves the ASR, nearest a point ahead on a
@@ -1026,6 +1028,7 @@ def _edges(view: MapView, borrow: bool = False) -> dict[tuple[int, str], int]:
         if not ln.oneway and borrow and not there and here:
             edges.setdefault((ln.dst, f"{BORROWED}{ln.src}|{ln.exit}"), ln.src)
     if borrow:
+        _narrow_side(view, edges)
         for a in view.asrs.values():
             m = a.duplicate_of
             if m is None or m not in view.asrs:
@@ -1034,6 +1037,38 @@ def _edges(view: MapView, borrow: bool = False) -> dict[tuple[int, str], int]:
                 if src == m and not e.startswith(BORROWED) and dst != a.id:
                     edges.setdefault((a.id, f"{BORROWED}{m}|{e}"), dst)
     return edges
+
+
+#: m. The two exits of a link whose midpoints lie farther apart than this (global frame) are not
+#: one doorway seen from both sides (see :func:`_narrow_side`).
+LINK_GAP = 1.5
+
+
+def _narrow_side(view: MapView, edges: dict[tuple[int, str], int]) -> None:
+    """Where the two exits of a two-way link lie more than ``LINK_GAP`` apart (global frame), both
+    ways go through the narrower one (the other side's borrowed, :func:`exit_of`): the wider is
+    an occlusion the mapper took for the entrance, not the doorway crossed. ``lab`` seed 23: the
+    west corridor entered at its corner, ASR 17's entrance an occlusion chord from the corner 7 m
+    up the corridor's far wall; backtracking through it, the robot crossed it in the middle of
+    the corridor into the south corridor's ASR, and never found its way back east."""
+    for ln in view.links:
+        if ln.oneway or ln.exit is None or ln.via is None:
+            continue
+        src, dst = view.asrs.get(ln.src), view.asrs.get(ln.dst)
+        if src is None or dst is None:
+            continue
+        a = next((e for e in src.exits if e.id == ln.exit), None)
+        b = next((e for e in dst.exits if e.id == ln.via), None)
+        if a is None or b is None:
+            continue
+        ma = transform_points(src.origin, np.array([a.midpoint]))[0]
+        mb = transform_points(dst.origin, np.array([b.midpoint]))[0]
+        if float(np.hypot(*(ma - mb))) <= LINK_GAP:
+            continue
+        wide, narrow, wide_exit, narrow_exit = (src, dst, a, b) if a.width > b.width else (dst, src, b, a)
+        if edges.get((wide.id, wide_exit.id)) == narrow.id:
+            del edges[(wide.id, wide_exit.id)]
+            edges[(wide.id, f"{BORROWED}{narrow.id}|{narrow_exit.id}")] = narrow.id
 
 
 def _within_hops(edges: dict[tuple[int, str], int], start: int, hops: int) -> set[int]:

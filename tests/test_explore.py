@@ -750,3 +750,20 @@ def test_a_retry_round_out_of_time_leads_into_the_visiting_round_then_ends():
     while not (cmd := ex.step(v, np.zeros((0, 2)), t)).done and t < 250.0:
         t += 0.5
     assert cmd.done and t > start + 59.0  # its own budget, not at once
+
+
+def test_a_link_whose_exits_lie_apart_is_travelled_through_the_narrower_one():
+    # 1 (one exit left) -- 2; the doorway 1/0 at x = 4 (2 m wide) is linked to 2's exit 2/0, an
+    # occlusion chord 7 m long that the mapper took for 2's entrance, its midpoint 3.5 m from the
+    # doorway's. Going back, the robot heads for the doorway (1/0, borrowed), not the chord.
+    a1 = room(1, 0, 0, 4, 4, exits=[door(1, 0, (4, 1), (4, 3), to=2), door(1, 1, (0, 1), (0, 3))])
+    a2 = room(2, 0, -6, 8, 4, origin=(4.0, 0.0, 0.0),
+              exits=[door(2, 0, (0.5, -6.0), (0.5, 1.0), to=1)])
+    links = [LinkRef(1, "1/0", 2, "2/0")]
+    g = Planner().plan(view([a1, a2], 2, pose=(3.0, 2.0, 0.0), links=links))
+    assert g.kind == "backtrack" and g.path == (2, 1) and g.exit == "<1|1/0"
+    assert g.exit_mid == pytest.approx((0.0, 2.0))  # the doorway, in 2's frame
+    # Exits whose midpoints agree are one doorway: the ASR's own exit is taken as before.
+    a2 = room(2, 0, -6, 8, 4, origin=(4.0, 0.0, 0.0), exits=[door(2, 0, (0.0, 3.0), (0.0, 1.0), to=1)])
+    g = Planner().plan(view([a1, a2], 2, pose=(3.0, 2.0, 0.0), links=links))
+    assert g.exit == "2/0"
