@@ -1057,8 +1057,7 @@ def _narrow_side(view: MapView, edges: dict[tuple[int, str], int]) -> None:
         src, dst = view.asrs.get(ln.src), view.asrs.get(ln.dst)
         if src is None or dst is None:
             continue
-        a = next((e for e in src.exits if e.id == ln.exit), None)
-        b = next((e for e in dst.exits if e.id == ln.via), None)
+        a, b = exit_of(view, src, ln.exit), exit_of(view, dst, ln.via)
         if a is None or b is None:
             continue
         ma = transform_points(src.origin, np.array([a.midpoint]))[0]
