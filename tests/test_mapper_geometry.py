@@ -236,6 +236,26 @@ def test_a_view_from_a_doorway_is_not_unioned_so_the_room_beyond_stays_out_of_th
             assert world.intersection(inside).area < 0.5, (a.id, world.intersection(inside).area)
 
 
+def test_a_wide_occlusion_whose_end_lies_near_the_crossing_is_not_the_entrance():
+    """``lab`` seed 1, ASR 12 (recorded): made at the corridor's south-west corner, the robot facing
+    south (+x); the first view's only exit runs 7.2 m to the far end of the south corridor, its end
+    0.9 m from where the robot came in, and 0.8 m beyond it along the chord. Taken as the entrance,
+    the south corridor looked explored and 3 of 7 regions were never entered."""
+    from mapper.mapper import entrance
+    from mapper.types import Exit
+
+    at = (-0.0199, 0.0001)  # the crossing, ASR 12's frame (m)
+    chord = Exit("12/0", (1.2654, 7.8886), (0.1127, 0.7901))
+    assert entrance([chord], at, 0.6) is None
+    # The same chord laid across the crossing, and a doorway-wide exit as near as the chord's end
+    # (narrow exits are not tested): each is the entrance.
+    across = Exit("12/0", (-0.3, 7.0), (-0.3, -0.2))
+    assert entrance([across], at, 0.6) is across
+    door = Exit("12/1", (1.4, 0.9), (0.5, 0.9))
+    assert entrance([door], at, 0.6) is door
+    assert entrance([chord, door], at, 0.6) is door
+
+
 @pytest.mark.xfail(strict=True, reason="known fault: a doorway beside the path is taken as the entrance")
 @pytest.mark.parametrize("y0", [4.98, 5.00])
 def test_a_doorway_beside_the_path_is_not_taken_as_the_way_back(y0):
