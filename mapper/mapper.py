@@ -146,7 +146,7 @@ def entrance(exits: list[Exit], at: tuple[float, float], passage_width: float) -
     a passage width beyond its end (:func:`_beside`) is an occlusion seen past the corner, not
     the doorway: ``lab`` seed 1 came round the corner into the south-west of the corridor, and
     the first view's only exit ran 7.2 m diagonally to the far end of the south corridor, one
-    end 0.9 m from where the robot came in. Taken as the entrance (linked back), it made the south
+    end 0.8 m from where the robot came in. Taken as the entrance (linked back), it made the south
     corridor look explored and took the gate from the way back: the corridor's ASR grew up the
     west corridor, the robot could not leave it the way it came, and 3 of 7 regions were never
     entered. Narrower exits are left alone: a doorway beside the path (README, known faults)

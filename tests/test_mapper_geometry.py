@@ -239,8 +239,9 @@ def test_a_view_from_a_doorway_is_not_unioned_so_the_room_beyond_stays_out_of_th
 def test_a_wide_occlusion_whose_end_lies_near_the_crossing_is_not_the_entrance():
     """``lab`` seed 1, ASR 12 (recorded): made at the corridor's south-west corner, the robot facing
     south (+x); the first view's only exit runs 7.2 m to the far end of the south corridor, its end
-    0.9 m from where the robot came in, and 0.8 m beyond it along the chord. Taken as the entrance,
-    the south corridor looked explored and 3 of 7 regions were never entered."""
+    0.8 m from where the robot came in and the crossing 0.8 m beyond that end along the chord.
+    Taken as the entrance, the south corridor looked explored and 3 of 7 regions were never
+    entered."""
     from mapper.mapper import entrance
     from mapper.types import Exit
 
