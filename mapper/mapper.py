@@ -165,11 +165,10 @@ def _beside(e: Exit, at: tuple[float, float], wide: float, slack: float) -> bool
     """Whether exit ``e``, wider than ``wide`` (m), lies beside the point ``at`` rather than across
     it: the foot of ``at`` on the chord's line falls more than ``slack`` (m) beyond either end (one
     frame)."""
-    d = np.subtract(e.b, e.a)
-    length = float(np.hypot(*d))
+    length = e.width
     if length <= wide:
         return False
-    s = float(np.dot(np.subtract(at, e.a), d)) / length
+    s = float(np.dot(np.subtract(at, e.a), np.subtract(e.b, e.a))) / length
     return s < -slack or s > length + slack
 
 
