@@ -213,6 +213,10 @@ class AsrBuilder:
         self._next_exit = 0
         self.stale = False  # the polygon grew but the record was not relabelled yet
         self._unstored: tuple[np.ndarray, np.ndarray] | None = None  # a view's segments, not yet stored
+        # Ids of the exits the robot was seen to cross (its path from one pose to the next cut the
+        # chord): never explained away as walls. Not an entrance, which is the nearest exit to
+        # where the robot came in, and can be a wall seen too sparsely beside the doorway.
+        self.crossed: set[str] = set()
 
     def add_view(self, view: View, pose: Pose, relabel: bool = True) -> bool:
         """Union the view seen from ``pose`` (ASR frame) into the ASR; True when the ASR changed.
@@ -366,7 +370,9 @@ class AsrBuilder:
         b = np.array([e.b for e in exits])
         ab = b - a
         s = ab / np.maximum(np.hypot(ab[:, 0], ab[:, 1]), 1e-12)[:, None]
+        # an exit the robot was seen to cross is not a wall, however a view sees it (see _relabel)
         explained = _covered(np.stack([a, b], axis=1), seen, p.label_tolerance)
+        explained &= np.array([e.id not in self.crossed for e in exits])
         if explained.any() and len(self.exit_segments):
             es = self.exit_segments
             ev = es[:, 1] - es[:, 0]
@@ -384,6 +390,16 @@ class AsrBuilder:
         gates = shapely.polygons(quads) if len(quads) else None
         self._gate_cache = (key, gates)
         return gates
+
+    def _passed(self, seg: np.ndarray) -> np.ndarray:
+        """(N,) True where a stored exit segment (N, 2, 2; ASR frame) lies along an exit the robot
+        was seen to cross (:attr:`crossed`): within ``label_tolerance`` and parallel."""
+        passed = [(e.a, e.b) for e in self.asr.exits if e.id in self.crossed]
+        if not passed or not len(seg):
+            return np.zeros(len(seg), dtype=bool)
+        d = seg[:, 1] - seg[:, 0]
+        u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
+        return _along(0.5 * (seg[:, 0] + seg[:, 1]), u, np.array(passed, dtype=float), self.p.label_tolerance)
 
     def _single_ring(self, g: shapely.Geometry, robot: shapely.Point) -> shapely.Polygon:
         """Valid, one ring, simplified, no holes: the part holding the ASR's origin (the first
@@ -443,9 +459,14 @@ class AsrBuilder:
             # to fit (far, at a grazing angle), not a way out; kept, it labels that wall an exit
             # (an edge along both is one), and the exits along both walls of a corridor joined its
             # doorways into one exit run.
-            self.exit_segments = self.exit_segments[
-                ~_covered(self.exit_segments, self.surfaces, p.label_tolerance)
-            ]
+            # Not one the robot was seen to cross (``crossed``): the walls either side of
+            # a doorway, each seen reaching a little into it, and a stray return at a jamb cover
+            # three of its five points (``lab`` seed 3: a view from 7 m dropped the south door
+            # this way, and its transition with it; the next view through the door swallowed the
+            # corridor, and the loop through it was never closed).
+            es = self.exit_segments
+            dropped = _covered(es, self.surfaces, p.label_tolerance) & ~self._passed(es)
+            self.exit_segments = es[~dropped]
         v = self._ring()
         nxt = np.concatenate([v[1:], v[:1]])
         mid = 0.5 * (v + nxt)

@@ -385,6 +385,8 @@ class Mapper:
         if inside:
             self._been_inside = True
         crossed = self._crossed_exit(prev, pose, inside)
+        if crossed is not None:
+            self._builders[self.current].crossed.add(crossed[0].id)
         if crossed is None and not inside and self._may_leave_elsewhere(pose):
             crossed = self._left_elsewhere(prev, pose)
         if crossed is not None:
