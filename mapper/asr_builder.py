@@ -215,7 +215,8 @@ class AsrBuilder:
         self._unstored: tuple[np.ndarray, np.ndarray] | None = None  # a view's segments, not yet stored
         # Ids of the exits the robot was seen to cross (its path from one pose to the next cut the
         # chord): never explained away as walls. Not an entrance, which is the nearest exit to
-        # where the robot came in, and can be a wall seen too sparsely beside the doorway.
+        # where the robot came in, and can be a wall seen too sparsely beside the doorway. Not in
+        # the map document: a map continued from one protects the exits crossed since.
         self.crossed: set[str] = set()
 
     def add_view(self, view: View, pose: Pose, relabel: bool = True) -> bool:
