@@ -145,6 +145,16 @@ def _along(mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float) -> np.nd
     return out
 
 
+def _lying_along(seg: np.ndarray, others: np.ndarray, tol: float) -> np.ndarray:
+    """(N,) True where a segment (N, 2, 2) lies along one of ``others`` (M, 2, 2): its midpoint
+    within ``tol`` (m) of one, and parallel to it."""
+    if len(seg) == 0 or len(others) == 0:
+        return np.zeros(len(seg), dtype=bool)
+    d = seg[:, 1] - seg[:, 0]
+    u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
+    return _along(0.5 * (seg[:, 0] + seg[:, 1]), u, others, tol)
+
+
 def _covered(seg: np.ndarray, surfaces: np.ndarray, tol: float) -> np.ndarray:
     """(N,) True where a segment (N, 2, 2) is covered by ``surfaces`` (M, 2, 2): three of five points
     along it (``_SAMPLES``) lie along one of them (within ``tol``, m, and parallel)."""
@@ -375,11 +385,8 @@ class AsrBuilder:
         explained = _covered(np.stack([a, b], axis=1), seen, p.label_tolerance)
         explained &= np.array([e.id not in self.crossed for e in exits])
         if explained.any() and len(self.exit_segments):
-            es = self.exit_segments
-            ev = es[:, 1] - es[:, 0]
-            ev = ev / np.maximum(np.hypot(ev[:, 0], ev[:, 1]), 1e-12)[:, None]
             gone = np.stack([a[explained], b[explained]], axis=1)
-            self.exit_segments = es[~_along(0.5 * (es[:, 0] + es[:, 1]), ev, gone, p.label_tolerance)]
+            self.exit_segments = self.exit_segments[~_lying_along(self.exit_segments, gone, p.label_tolerance)]
         keep = ~explained
         key = (a[keep].tobytes(), b[keep].tobytes())
         if self._gate_cache is not None and self._gate_cache[0] == key:
@@ -394,13 +401,9 @@ class AsrBuilder:
 
     def _passed(self, seg: np.ndarray) -> np.ndarray:
         """(N,) True where a stored exit segment (N, 2, 2; ASR frame) lies along an exit the robot
-        was seen to cross (:attr:`crossed`): within ``label_tolerance`` and parallel."""
-        passed = [(e.a, e.b) for e in self.asr.exits if e.id in self.crossed]
-        if not passed or not len(seg):
-            return np.zeros(len(seg), dtype=bool)
-        d = seg[:, 1] - seg[:, 0]
-        u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
-        return _along(0.5 * (seg[:, 0] + seg[:, 1]), u, np.array(passed, dtype=float), self.p.label_tolerance)
+        was seen to cross (:attr:`crossed`)."""
+        passed = np.array([(e.a, e.b) for e in self.asr.exits if e.id in self.crossed], dtype=float)
+        return _lying_along(seg, passed.reshape(-1, 2, 2), self.p.label_tolerance)
 
     def _single_ring(self, g: shapely.Geometry, robot: shapely.Point) -> shapely.Polygon:
         """Valid, one ring, simplified, no holes: the part holding the ASR's origin (the first
@@ -465,9 +468,10 @@ class AsrBuilder:
             # three of its five points (``lab`` seed 3: a view from 7 m dropped the south door
             # this way, and its transition with it; the next view through the door swallowed the
             # corridor, and the loop through it was never closed).
-            es = self.exit_segments
-            dropped = _covered(es, self.surfaces, p.label_tolerance) & ~self._passed(es)
-            self.exit_segments = es[~dropped]
+            dropped = _covered(self.exit_segments, self.surfaces, p.label_tolerance)
+            if dropped.any():
+                dropped &= ~self._passed(self.exit_segments)
+                self.exit_segments = self.exit_segments[~dropped]
         v = self._ring()
         nxt = np.concatenate([v[1:], v[:1]])
         mid = 0.5 * (v + nxt)
