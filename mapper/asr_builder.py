@@ -386,7 +386,8 @@ class AsrBuilder:
         explained &= np.array([e.id not in self.crossed for e in exits])
         if explained.any() and len(self.exit_segments):
             gone = np.stack([a[explained], b[explained]], axis=1)
-            self.exit_segments = self.exit_segments[~_lying_along(self.exit_segments, gone, p.label_tolerance)]
+            es = self.exit_segments
+            self.exit_segments = es[~_lying_along(es, gone, p.label_tolerance)]
         keep = ~explained
         key = (a[keep].tobytes(), b[keep].tobytes())
         if self._gate_cache is not None and self._gate_cache[0] == key:
