@@ -703,8 +703,37 @@ def test_a_loop_closing_crossing_is_driven_like_an_exit_and_ends_in_the_new_asr(
     a5 = room(5, 0, 0, 4, 4, origin=(0.0, 0.0, 0.0), exits=[door(5, 0, (1, 4), (3, 4), to=4)])
     ex.step(view([*rooms, a5], 5, pose=(2.0, 3.0, -math.pi / 2)), none, 1.0)
     assert ex.goal is None or ex.goal.kind != "close"
-    # one such crossing per ASR, and none from the ASR it made (no chain through known space)
-    assert ex.planner.memory.closing_from == {4} and ex.planner.memory.closing_made == {5}
+    # one such crossing per ASR, and by default none from the ASR it made (no chain through
+    # known space): 5 is the first of a chain
+    assert ex.planner.memory.closing_from == {4} and ex.planner.memory.closing_made == {5: 1}
+
+
+@pytest.mark.parametrize("chain", [1, 2])
+def test_loop_closing_crossings_chain_through_known_space_up_to_close_chain(chain):
+    # The crossing from 4 made ASR 5 in 1's space, and 5 matched nothing; 5's east doorway, with no
+    # link, opens into 2's space (2 is three links from 5: 5-4-3-2). With close_chain 2 the robot
+    # crosses it as well, and the ASR that crossing makes (6, second of the chain) makes none.
+    ex = Explorer(ExploreParams(close_chain=chain))
+    rooms = _ring()
+    none = np.zeros((0, 2))
+    ex.step(view(rooms, 4, pose=(2.0, 2.0, 0.0)), none, 0.0)
+    ex.step(view(rooms, 4, pose=(*ex.goal.target, -math.pi / 2)), none, 0.5)
+    a5 = room(5, 0, 0, 4, 4, origin=(0.0, 0.0, 0.0), edges=("surface", "exit", "surface", "surface"),
+              exits=[door(5, 0, (1, 4), (3, 4), to=4), door(5, 1, (4, 1), (4, 3))])
+    ex.step(view([*rooms, a5], 5, pose=(2.0, 3.0, -math.pi / 2)), none, 1.0)
+    assert ex.planner.memory.closing_made == {5: 1}
+    goal = ex.goal
+    if chain == 1:
+        assert goal is None or goal.kind != "close"
+        return
+    assert goal.kind == "close" and goal.exit == "5/1" and goal.asr == 5
+    ex.step(view([*rooms, a5], 5, pose=(*goal.target, 0.0)), none, 1.5)
+    assert ex.phase == "through"
+    a6 = room(6, 0, 0, 4, 4, origin=(4.0, 0.0, 0.0), edges=("surface", "surface", "surface", "exit"),
+              exits=[door(6, 0, (0, 1), (0, 3), to=5), door(6, 1, (1, 4), (3, 4))])
+    ex.step(view([*rooms, a5, a6], 6, pose=(1.0, 2.0, 0.0)), none, 2.0)
+    assert ex.planner.memory.closing_made == {5: 1, 6: 2}
+    assert ex.planner.closing_exit(view([*rooms, a5, a6], 6, pose=(1.0, 2.0, 0.0)), a6) is None
 
 
 def test_regions_looked_at_only_from_afar_are_visited_once_before_exploration_ends():
