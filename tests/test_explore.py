@@ -703,8 +703,8 @@ def test_a_loop_closing_crossing_is_driven_like_an_exit_and_ends_in_the_new_asr(
     a5 = room(5, 0, 0, 4, 4, origin=(0.0, 0.0, 0.0), exits=[door(5, 0, (1, 4), (3, 4), to=4)])
     ex.step(view([*rooms, a5], 5, pose=(2.0, 3.0, -math.pi / 2)), none, 1.0)
     assert ex.goal is None or ex.goal.kind != "close"
-    # one such crossing per ASR, and by default none from the ASR it made (no chain through
-    # known space): 5 is the first of a chain
+    # one such crossing per ASR; 5 is the first of a chain, with no unlinked exit of its own to
+    # go on through (the test below gives it one)
     assert ex.planner.memory.closing_from == {4} and ex.planner.memory.closing_made == {5: 1}
 
 
