@@ -274,3 +274,22 @@ def test_a_doorway_merged_into_the_way_back_is_still_gone_through():
     assert off.finished and off.regions_missed == ["corridor", "room B"]
     on = DirectSim(world, SimParams(seed=8)).run()
     assert on.finished and on.regions_missed == [] and on.false_cycles == 0
+
+
+def test_command_latency_delays_the_robot_acting_on_each_command():
+    # The same run with and without latency decides identically until the robot first moves (the
+    # scans are the same): with latency it starts moving that much later in simulated time.
+    def first_motion(latency: float) -> float:
+        sim = DirectSim(load_world("office"), SimParams(duration=6.0, command_latency=latency))
+        sim.run()
+        start = sim.robot.body.trajectory[0][1]
+        return next(t for t, p in sim.robot.body.trajectory
+                    if math.hypot(p[0] - start[0], p[1] - start[1]) > 0 or p[2] != start[2])
+
+    t0, t1 = first_motion(0.0), first_motion(0.5)
+    assert t1 - t0 == pytest.approx(0.5, abs=0.1 + 1e-9)  # acted on at the next 0.1 s physics step
+
+
+def test_latency_is_refused_without_direct(capsys):
+    assert main(["simulate", "--latency", "0.2", "--duration", "1"]) == 2
+    assert "--latency: only with --direct" in capsys.readouterr().err

@@ -12,6 +12,7 @@ from dataclasses import replace
 
 from service.argtypes import (
     distinct_files,
+    non_negative,
     output_file,
     positive,
     robot_name,
@@ -45,6 +46,9 @@ def add_arguments(p) -> None:
     p.add_argument("--direct", action="store_true",
                    help="no ptys, drivers or Zenoh: the mapper in-process on a simulated clock (as fast "
                         "as the computer allows, repeatable for a seed)")
+    p.add_argument("--latency", type=non_negative, default=0.0, metavar="S",
+                   help="with --direct: simulated seconds from a scan to the robot acting on the command "
+                        "planned from it (default 0; the whole stack at --fast has 0.15-0.35 s)")
     p.add_argument("--svg", default="asrmap-map.svg", metavar="OUT", type=output_file,
                    help="picture of the map (default: %(default)s)")
     p.add_argument("--json", default="asrmap-map.json", metavar="OUT", type=output_file,
@@ -75,7 +79,10 @@ def run(args) -> int:
     world_file = args.world if os.path.isfile(args.world) else None  # else a built-in world's name
     distinct_files({"--world": world_file}, {"--json": args.json, "--svg": args.svg})
     world = load_world(args.world)
-    params = SimParams(seed=args.seed, explore=args.explore, duration=args.duration)
+    if args.latency and not args.direct:
+        raise ValueError("--latency: only with --direct (the whole stack has its own latency)")
+    params = SimParams(seed=args.seed, explore=args.explore, duration=args.duration,
+                       command_latency=args.latency)
     if not args.explore and args.duration is None:
         params = replace(params, duration=60.0)  # nothing would ever end the run
     show = _progress(10.0)

@@ -32,6 +32,7 @@ import math
 import tempfile
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -64,7 +65,10 @@ class SimParams:
     ``sip_cycle``: P2OS SIP cycle (0.1 s); ``scan_period``: seconds between scans (the LMS200 at
     38400 baud, 181 values: 96.9 ms); ``resolution``: degrees between beams; ``sigma``: range noise
     (m); ``odometry_error``: the encoders' error; ``footprint``: ``"rect"`` or ``"circle"``;
-    ``duration``: stop after this long (None: when exploration is done, capped at ``max_duration``).
+    ``duration``: stop after this long (None: when exploration is done, capped at ``max_duration``);
+    ``command_latency``: simulated seconds from a scan's sampling to the robot acting on the command
+    the explorer computed from it (the stepped simulation only; the whole stack has its own: the
+    scan's transmission, the mapper, the planning and the P2OS command, 0.15-0.35 s at 10x).
     """
 
     sip_cycle: float = 0.1
@@ -78,6 +82,7 @@ class SimParams:
     duration: float | None = None
     max_duration: float = 3600.0
     explore_params: ExploreParams = field(default_factory=ExploreParams)
+    command_latency: float = 0.0
 
 
 class SimRobot:
@@ -369,8 +374,11 @@ class DirectSim:
         next_progress = 0.0
         wall0 = time.perf_counter()
         finished = False
+        pending: deque[tuple[float, Command]] = deque()  # commands on their way (command_latency)
         while self.t < limit:
             self.t += p.sip_cycle
+            while pending and pending[0][0] <= self.t + 1e-9:
+                self._act(pending.popleft()[1])
             self.robot.drive.step(p.sip_cycle)
             odo = self.robot.drive.odometry_pose
             self.odometry.append(self.t, odo)
@@ -387,8 +395,10 @@ class DirectSim:
                 stalled = self.robot.drive.left_stall or self.robot.drive.right_stall
                 with self.mapper.lock:
                     self.command = self.explorer.step(self.mapper.view(), pts, self.t, stalled)
-                self.robot.drive.set_velocity(self.command.v)
-                self.robot.drive.set_rotation(self.command.w)
+                if p.command_latency > 0:
+                    pending.append((self.t + p.command_latency, self.command))
+                else:
+                    self._act(self.command)
                 if self.command.done and p.duration is None:
                     finished = True
                     break
@@ -402,6 +412,10 @@ class DirectSim:
         s.scans = self.scans
         self.document = doc
         return s
+
+    def _act(self, cmd: Command) -> None:
+        self.robot.drive.set_velocity(cmd.v)
+        self.robot.drive.set_rotation(cmd.w)
 
 
 # --- the whole stack on ptys ------------------------------------------------------------------------------
