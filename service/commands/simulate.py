@@ -76,11 +76,11 @@ def _progress(every: float):
 
 
 def run(args) -> int:
+    if args.latency and not args.direct:
+        raise ValueError("--latency: only with --direct (the whole stack has its own latency)")
     world_file = args.world if os.path.isfile(args.world) else None  # else a built-in world's name
     distinct_files({"--world": world_file}, {"--json": args.json, "--svg": args.svg})
     world = load_world(args.world)
-    if args.latency and not args.direct:
-        raise ValueError("--latency: only with --direct (the whole stack has its own latency)")
     params = SimParams(seed=args.seed, explore=args.explore, duration=args.duration,
                        command_latency=args.latency)
     if not args.explore and args.duration is None:

@@ -374,11 +374,15 @@ class DirectSim:
         next_progress = 0.0
         wall0 = time.perf_counter()
         finished = False
-        pending: deque[tuple[float, Command]] = deque()  # commands on their way (command_latency)
+        # Commands on their way to the motors, each acted on from its time on (the next physics
+        # step when command_latency is 0).
+        pending: deque[tuple[float, Command]] = deque()
         while self.t < limit:
             self.t += p.sip_cycle
             while pending and pending[0][0] <= self.t + 1e-9:
-                self._act(pending.popleft()[1])
+                cmd = pending.popleft()[1]
+                self.robot.drive.set_velocity(cmd.v)
+                self.robot.drive.set_rotation(cmd.w)
             self.robot.drive.step(p.sip_cycle)
             odo = self.robot.drive.odometry_pose
             self.odometry.append(self.t, odo)
@@ -395,10 +399,7 @@ class DirectSim:
                 stalled = self.robot.drive.left_stall or self.robot.drive.right_stall
                 with self.mapper.lock:
                     self.command = self.explorer.step(self.mapper.view(), pts, self.t, stalled)
-                if p.command_latency > 0:
-                    pending.append((self.t + p.command_latency, self.command))
-                else:
-                    self._act(self.command)
+                pending.append((self.t + p.command_latency, self.command))
                 if self.command.done and p.duration is None:
                     finished = True
                     break
@@ -412,10 +413,6 @@ class DirectSim:
         s.scans = self.scans
         self.document = doc
         return s
-
-    def _act(self, cmd: Command) -> None:
-        self.robot.drive.set_velocity(cmd.v)
-        self.robot.drive.set_rotation(cmd.w)
 
 
 # --- the whole stack on ptys ------------------------------------------------------------------------------
