@@ -132,7 +132,8 @@ class SimRobot:
 class LockedMapper:
     """The mapper behind a lock, so the explorer reads a consistent state while the mapper thread
     writes. Records what the summary needs: every event, which ASR each was entered from, and
-    every crossing ``(t, from ASR, to ASR)`` (the mapper's clock, s)."""
+    every crossing ``(t, from ASR, to ASR)`` (the mapper's clock, s); and :attr:`scan`, the scan
+    last mapped, whose pose (the current ASR's frame) :meth:`view` gives."""
 
     def __init__(self, mapper: Any) -> None:
         self.mapper = mapper
@@ -142,6 +143,7 @@ class LockedMapper:
         self.crossings: list[tuple[float, int, int]] = []
         self._links: list = []
         self._dirty = True
+        self.scan: Scan | None = None
 
     def add_odometry(self, odo: Odometry):
         with self.lock:
@@ -149,7 +151,9 @@ class LockedMapper:
 
     def add_scan(self, scan: Scan):
         with self.lock:
-            return self._record(list(self.mapper.add_scan(scan) or ()))
+            events = self._record(list(self.mapper.add_scan(scan) or ()))
+            self.scan = scan
+            return events
 
     def flush(self):
         """The events of the view still waiting (see "Pipelining" in mapper.mapper)."""
@@ -517,8 +521,6 @@ class StackSim:
         self.explorer = Explorer(self.p.explore_params) if self.p.explore else None
         self.mapper: LockedMapper | None = None
         self.service = None
-        self._scan_lock = threading.Lock()
-        self._scan: Any = None
         self._user_stop = threading.Event()
         self.command = Command(0.0, 0.0, "idle")
 
@@ -561,18 +563,6 @@ class StackSim:
         # out 0.2-0.9 m off where the stepped simulation's are 0.1 m). At 115200 a SIP takes 2.7 ms.
         return 9600 if self.speed <= 1.0 else max(PIONEER_BAUDS)
 
-    def _open_laser(self, cfg):
-        from service.pipeline import open_laser
-
-        dev = open_laser(cfg)
-
-        def keep(scan: Any) -> None:
-            with self._scan_lock:
-                self._scan = scan
-
-        dev.on_scan(keep)
-        return dev
-
     def _new_mapper(self, cfg, doc):
         # A simulation always starts a new map: the world is new to the robot.
         self.mapper = LockedMapper(new_mapper(cfg.mapper_params()))
@@ -589,7 +579,7 @@ class StackSim:
         odometry = Track()
         with self.devices as dev:
             cfg = self._config(dev.pioneer_path, dev.laser_path)
-            service = self.service = Service(cfg, open_laser=self._open_laser, new_mapper=self._new_mapper)
+            service = self.service = Service(cfg, new_mapper=self._new_mapper)
 
             def serve() -> None:
                 try:
@@ -625,7 +615,9 @@ class StackSim:
         return s
 
     def _drive(self, service, stop: threading.Event, limit: float, odometry: Track) -> bool:
-        """The explorer loop: once per new scan, read the mapper, command the robot. True when done."""
+        """The explorer loop: once per newly mapped scan, read the mapper, command the robot. True
+        when done. The explorer steers by the scan the mapper took last, with the pose the mapper
+        gave it (as the live service's ``Exploration`` does), not by a newer scan at an older pose."""
         last_scan = None
         next_progress = 0.0
         period = self.p.scan_period / self.speed
@@ -636,8 +628,7 @@ class StackSim:
             latest = service.odometry.latest() if hasattr(service, "odometry") else None
             if latest is not None and (not odometry.t or latest[0] > odometry.t[-1]):
                 odometry.append(latest[0], latest[1])
-            with self._scan_lock:
-                scan = self._scan
+            scan = self.mapper.scan if self.mapper is not None else None
             dev = service.pioneer.device
             odo_now = getattr(dev, "odometry", None) if dev is not None else None
             sip = getattr(odo_now, "sip", None)
@@ -647,10 +638,11 @@ class StackSim:
                 continue
             last_scan = scan
             if self.explorer is not None:
-                pts = scan_points(np.asarray(scan.ranges, float), np.asarray(scan.angles, float),
-                                  float(getattr(scan, "max_range", LMS_MAX_RANGE)), self.explorer.p)
                 with self.mapper.lock:  # a snapshot: the mapper thread must not wait for the planning
                     view = self.mapper.view(copy=True)
+                    scan = last_scan = self.mapper.scan  # the scan of the view's pose
+                pts = scan_points(np.asarray(scan.ranges, float), np.asarray(scan.angles, float),
+                                  float(getattr(scan, "max_range", LMS_MAX_RANGE)), self.explorer.p)
                 if view.current is None:
                     cmd = Command(0.0, 0.0, "waiting for the first ASR")
                 else:
