@@ -62,6 +62,7 @@ import numpy as np
 import shapely
 from shapely.ops import nearest_points
 
+from mapper.exits import segment_distance
 from mapper.se2 import Pose, compose, inverse, transform_points, wrap, wrap_array
 from mapper.topology import original_of
 from mapper.types import ASR, Exit
@@ -140,6 +141,10 @@ class ExploreParams:
     path_clearance: float = 0.3
     path_lookahead: float = 0.8
     replan_time: float = 3.0
+    #: m. Scan points (the last ``memory_time`` s) within this of the robot are taken out of the
+    #: area a path is planned through, so a polygon drawn across a wall (drift between ASRs, a
+    #: view seen through a gap) cannot route the robot into what the laser sees now. 0: off.
+    path_obstacle_reach: float = 4.0
     #: m. Lateral margin added to the robot's half width when judging a heading free (steering).
     steer_margin: float = 0.12
     #: m. Lateral margin of the safety stop's corridor, and of steering through a doorway (0.9 m
@@ -1153,10 +1158,11 @@ def exit_of(view: MapView, asr: ASR, exit_id: str, p: ExploreParams | None = Non
 
 
 def plan_path(polygon: shapely.Geometry, start: tuple[float, float], goal: tuple[float, float],
-              cell: float, clearance: float) -> np.ndarray | None:
+              cell: float, clearance: float, obstacles: np.ndarray | None = None) -> np.ndarray | None:
     """Shortest path (K, 2) from ``start`` to ``goal`` through ``polygon`` shrunk by ``clearance``
-    (m, one frame), on a grid of ``cell`` m with 8 neighbours; its first and last points are the
-    free cells nearest ``start`` and ``goal`` (each within 4 cells of free space, else None)."""
+    (m, one frame), on a grid of ``cell`` m with 8 neighbours, keeping ``clearance`` from each of
+    ``obstacles`` (M, 2) too; its first and last points are the free cells nearest ``start`` and
+    ``goal`` (each within 4 cells of free space, else None)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import dijkstra
 
@@ -1170,6 +1176,8 @@ def plan_path(polygon: shapely.Geometry, start: tuple[float, float], goal: tuple
     xs, ys = x0 + cell * np.arange(nx), y0 + cell * np.arange(ny)
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
     ok = shapely.contains_xy(free, gx, gy)
+    if obstacles is not None and len(obstacles):
+        _clear_around(ok, (x0, y0), cell, np.asarray(obstacles, dtype=float), clearance)
     if not ok.any():
         return None
     idx = -np.ones((nx, ny), dtype=int)
@@ -1201,6 +1209,21 @@ def plan_path(polygon: shapely.Geometry, start: tuple[float, float], goal: tuple
     while path[-1] != a:
         path.append(int(pred[path[-1]]))
     return pts[path[::-1]]
+
+
+def _clear_around(ok: np.ndarray, origin: tuple[float, float], cell: float, points: np.ndarray,
+                  radius: float) -> None:
+    """Mark not free (in place) the cells of the grid ``ok`` (cell (i, j) at origin + cell * (i, j),
+    m) within ``radius`` m of any of ``points`` (M, 2)."""
+    k = math.ceil(radius / cell)
+    di, dj = np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1), indexing="ij")
+    ci = np.rint((points[:, 0] - origin[0]) / cell).astype(int)
+    cj = np.rint((points[:, 1] - origin[1]) / cell).astype(int)
+    ii, jj = ci[:, None] + di.ravel()[None, :], cj[:, None] + dj.ravel()[None, :]
+    dx = origin[0] + cell * ii - points[:, 0:1]
+    dy = origin[1] + cell * jj - points[:, 1:2]
+    hit = (np.hypot(dx, dy) < radius) & (ii >= 0) & (ii < ok.shape[0]) & (jj >= 0) & (jj < ok.shape[1])
+    ok[ii[hit], jj[hit]] = False
 
 
 # --- the controller ---------------------------------------------------------------------------------
@@ -1660,7 +1683,7 @@ class Explorer:
     def _drive_to(self, target: tuple[float, float], pose: Pose, points: np.ndarray, t: float,
                   status: str, margin: float | None = None) -> Command:
         dist = math.hypot(target[0] - pose[0], target[1] - pose[1])
-        aim, remaining = self._aim(target, pose, t)
+        aim, remaining = self._aim(target, pose, t, self._near if len(self._near) >= len(points) else points)
         self._progress(remaining, t)
         if self._stuck(t):
             return self._start_recovery(points, t)
@@ -1687,12 +1710,14 @@ class Explorer:
             return self._start_recovery(points, t)
         return Command(0.0, w, f"{status} (safety stop)")
 
-    def _aim(self, target: tuple[float, float], pose: Pose, t: float) -> tuple[tuple[float, float], float]:
+    def _aim(self, target: tuple[float, float], pose: Pose, t: float,
+             points: np.ndarray) -> tuple[tuple[float, float], float]:
         """Where to steer now on the way to ``target`` (ASR frame), and the distance left (m): the
         target itself when the straight line to it stays inside the ASR, shrunk by the robot's
         half width, else a point ``path_lookahead`` along a path planned inside the ASR (from the
         free cells nearest the robot and the target, which may lie outside it: a robot beside a
-        wall, a target beyond an exit). No path found: the target itself."""
+        wall, a target beyond an exit). No path found: the target itself. ``points`` (robot frame,
+        m): what the laser sees, kept out of the path (``path_obstacle_reach``)."""
         p = self.p
         direct = (target, math.hypot(target[0] - pose[0], target[1] - pose[1]))
         asr = self._asr
@@ -1706,10 +1731,17 @@ class Explorer:
             far = self.goal is not None and self.goal.kind == "goto" and self._view is not None
             # A far exit (goto) is reached through the whole map: every ASR, in this one's frame.
             poly = self._map_area(self._view, asr) if far else shapely.make_valid(asr.polygon)
+            seen = np.zeros((0, 2))
+            if p.path_obstacle_reach > 0.0 and len(points):
+                near = points[np.hypot(points[:, 0], points[:, 1]) < p.path_obstacle_reach]
+                seen = transform_points(pose, near) if len(near) else seen
             inner = poly.buffer(-p.half_width)
             line = shapely.LineString([pose[:2], target])
-            if not inner.covers(line):
-                self._path = plan_path(poly, (pose[0], pose[1]), target, p.path_cell, p.path_clearance)
+            blocked = len(seen) and segment_distance(seen[:, 0], seen[:, 1],
+                                                     np.array([pose[:2], target])).min() < p.half_width
+            if blocked or not inner.covers(line):
+                self._path = plan_path(poly, (pose[0], pose[1]), target, p.path_cell, p.path_clearance,
+                                       seen)
         path = self._path
         if path is None or len(path) < 2:
             return direct

@@ -400,9 +400,28 @@ def test_a_target_round_a_corner_is_reached_along_a_path_inside_the_asr():
     assert a.polygon.buffer(-0.25).contains(__import__("shapely").LineString(path))
     ex = Explorer()
     ex.step(view([a], 1, pose=(5.0, 1.0, math.pi)), np.zeros((0, 2)), 0.0)
-    aim, left = ex._aim((1.0, 5.0), (5.0, 1.0, math.pi), 0.0)
+    aim, left = ex._aim((1.0, 5.0), (5.0, 1.0, math.pi), 0.0, np.zeros((0, 2)))
     assert aim[1] < 2.0 - 0.25  # along the foot first, not straight at the corner
     assert left > math.hypot(4.0, 4.0)
+
+
+def test_a_path_goes_round_a_wall_the_laser_sees_across_the_polygon():
+    # The ASR's polygon (a drifted view, say) is open from x = 0 to 6, but the laser sees a wall
+    # across it at x = 3 from y = 0 to 3: the path to (5, 1) goes round the wall's end at y = 3.
+    a = room(1, 0, 0, 6, 5)
+    ex = Explorer()
+    pose = (1.0, 1.0, 0.0)
+    ex.step(view([a], 1, pose=pose), np.zeros((0, 2)), 0.0)
+    assert ex._aim((5.0, 1.0), pose, 0.0, np.zeros((0, 2)))[0] == (5.0, 1.0)  # nothing seen: straight
+    wall = np.column_stack([np.full(31, 2.0), np.linspace(-1.0, 2.0, 31)])  # robot frame
+    ex = Explorer()
+    ex.step(view([a], 1, pose=pose), np.zeros((0, 2)), 0.0)
+    aim, left = ex._aim((5.0, 1.0), pose, 0.0, wall)
+    assert aim[1] > 1.3 and aim[0] < 3.0  # up along the wall towards its end, not into it
+    assert left > 4.0 + 2.0  # round the end: (1,1) -> (3,3.3) -> (5,1) is > 6 m
+    off = Explorer(ExploreParams(path_obstacle_reach=0.0))
+    off.step(view([a], 1, pose=pose), np.zeros((0, 2)), 0.0)
+    assert off._aim((5.0, 1.0), pose, 0.0, wall)[0] == (5.0, 1.0)  # switched off: straight at it
 
 
 # --- what needs no visit, and loops that end ---------------------------------------------------------
