@@ -156,6 +156,7 @@ class GlobalMap:
         ``crossing_pose``: the robot pose in ``src``'s frame at the scan that created ``asr`` (m, rad);
         it is also ``asr``'s frame seen from ``src``'s. Sets ``asr.origin`` (method.md §4).
         """
+        events = self._leave(t)
         parent = self.asrs[src]
         asr.origin = child_origin(parent.origin, crossing_pose)
         self.odometry_origin[asr.id] = child_origin(self.odometry_origin[src], crossing_pose)
@@ -169,12 +170,24 @@ class GlobalMap:
         info = diagonal_info(max(0.05, p.odometry_sigma_xy * d), max(0.01, p.odometry_sigma_theta * d))
         self._odometry_edges.append(Edge(src, asr.id, tuple(crossing_pose), info))
         self._switch_to(asr.id, src)
-        return self.check(asr.id, t)
+        return events + self.check(asr.id, t)
 
     def enter(self, asr_id: int, src: int | None, t: float) -> list[Event]:
         """The robot re-entered a known ASR from ``src`` (through a known transition)."""
+        events = self._leave(t)
         self._switch_to(asr_id, src)
-        return []
+        return events
+
+    def _leave(self, t: float) -> list[Event]:
+        """The robot is leaving the current ASR: its last check (``CycleParams.leave_check``) when it
+        grew since the one before."""
+        n = self.current
+        if not self.params.leave_check or n is None or n not in self.asrs:
+            return []
+        last = self._checked_area.get(n)
+        if last is None or self.asrs[n].area <= last:
+            return []
+        return self.check(n, t)
 
     def updated(self, asr_id: int, t: float) -> list[Event]:
         """ASR ``asr_id`` changed (grew). Re-checks the current ASR once its area grew materially."""

@@ -110,6 +110,32 @@ HINDSIGHT = [
 WEST = (-0.15, 0.0, 0.0)
 
 
+@pytest.mark.parametrize("leave_check", [True, False])
+def test_a_revisit_that_passes_only_after_its_last_growth_check_is_closed_as_the_robot_leaves(leave_check):
+    # ASR 6, the room's western 2.6 m placed 0.75 m west by the drift, fails the crosscheck at
+    # creation (1's centre, x = 2, is 1.85 m in global x: only 0.1 m inside 6). It then grows to
+    # 3.2 m (23 %, below regrowth_fraction: no check), which puts 1's centre 0.45 m inside; the
+    # robot leaves for 7, and the leave check closes 6 onto 1. Without it, nothing does.
+    params = FULL.replace(align_failed_crosscheck=False, hindsight=False, leave_check=leave_check)
+    gm = GlobalMap(params)
+    events = drive(gm, HINDSIGHT[:6], per_step=WEST)
+    assert (6, 1, "centre-crosscheck") in [(e.asr, e.matches, e.reason) for e in events
+                                           if isinstance(e, CycleRejected)]
+    box, frame, exits = HINDSIGHT[5]
+    grown = box_asr(6, (0, 0, 3.2, 4), frame, exits)
+    gm.asrs[6].boundary, gm.asrs[6].centre = grown.boundary, grown.centre
+    assert gm.updated(6, 6.5) == []  # grew by less than regrowth_fraction: no check
+    seven = box_asr(7, *HINDSIGHT[6][:1], HINDSIGHT[6][1], HINDSIGHT[6][2])
+    crossing = between(compose(drift(5, WEST), frame), compose(drift(6, WEST), HINDSIGHT[6][1]))
+    events = gm.add_created(seven, 6, gm.asrs[6].exits[0].id, seven.exits[0].id, crossing, 7.0)
+    if leave_check:
+        assert (6, 1, "centre-crosscheck") in accepted(events)
+        assert gm.asrs[6].duplicate_of == 1
+    else:
+        assert (6, 1) not in [(a, m) for a, m, _ in accepted(events)]
+        assert gm.asrs[6].duplicate_of is None
+
+
 def test_a_misaligned_overlap_fails_the_crosscheck_and_is_accepted_in_hindsight():
     gm = GlobalMap(FULL.replace(align_failed_crosscheck=False))
     events = drive(gm, HINDSIGHT, per_step=WEST)
