@@ -121,7 +121,7 @@ def test_a_revisit_that_passes_only_after_its_last_growth_check_is_closed_as_the
     events = drive(gm, HINDSIGHT[:6], per_step=WEST)
     assert (6, 1, "centre-crosscheck") in [(e.asr, e.matches, e.reason) for e in events
                                            if isinstance(e, CycleRejected)]
-    box, frame, exits = HINDSIGHT[5]
+    _, frame, exits = HINDSIGHT[5]
     grown = box_asr(6, (0, 0, 3.2, 4), frame, exits)
     gm.asrs[6].boundary, gm.asrs[6].centre = grown.boundary, grown.centre
     assert gm.updated(6, 6.5) == []  # grew by less than regrowth_fraction: no check

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import math
@@ -11,9 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mapper.cycle_params import CycleParams
+from mapper.params import MapperParams
 from service.cli import main
 from service.explore import ExploreParams
-from service.sim.simulator import DirectSim, SimParams, SimRobot, StackSim, WorldDevices
+from service.sim.simulator import DirectSim, SimParams, SimRobot, StackSim, WorldDevices, new_mapper
 from service.sim.world import load_world, parse_world
 
 
@@ -268,11 +271,21 @@ def test_a_doorway_merged_into_the_way_back_is_still_gone_through():
     """`aliasing` seed 8: room A's second ASR has the doorway's exit edges run on round the corner
     into the gap the robot came in by, one exit chord linked back to the first ASR. Exploration
     ended after 250 s in room A (the corridor and room B unentered) until the explorer took the
-    straight pieces of a linked exit's run as openings of their own (``side_openings``)."""
+    straight pieces of a linked exit's run as openings of their own (``side_openings``).
+
+    The runs are chaotic: later changes (paths round what the scans show, the cycle check on
+    leaving an ASR) took seed 8 past that ASR another way, so both runs switch them off to replay
+    the run the fault was traced in."""
     world = load_world("aliasing")
-    off = DirectSim(world, SimParams(seed=8, explore_params=ExploreParams(side_openings=False))).run()
+
+    def run(**explore) -> object:
+        mapper = new_mapper(dataclasses.replace(MapperParams(), cycles=CycleParams(leave_check=False)))
+        params = SimParams(seed=8, explore_params=ExploreParams(path_obstacle_reach=0.0, **explore))
+        return DirectSim(world, params, mapper=mapper).run()
+
+    off = run(side_openings=False)
     assert off.finished and off.regions_missed == ["corridor", "room B"]
-    on = DirectSim(world, SimParams(seed=8)).run()
+    on = run()
     assert on.finished and on.regions_missed == [] and on.false_cycles == 0
 
 
