@@ -6,7 +6,8 @@ The mapper tells it when an ASR is created (:meth:`GlobalMap.add_created`), re-e
 (:meth:`GlobalMap.enter`) or has changed (:meth:`GlobalMap.updated`); it answers with events.
 
 The cycle check (§5), run at creation and whenever the current ASR's area grew by more than
-``CycleParams.regrowth_fraction`` since its last check:
+``CycleParams.regrowth_fraction`` since its last check (and, beyond the paper, once more as the
+robot leaves it when it grew at all since then: ``CycleParams.leave_check``):
 
 1. c = the current ASR's centre in the global frame.
 2. Candidates: ASRs whose global polygon contains c (index query, O(log² N + k)), except the
