@@ -62,3 +62,15 @@ def test_ground_truth_trajectory_and_frames():
 def test_a_start_inside_an_obstacle_is_refused():
     with pytest.raises(ValueError, match="overlaps an obstacle"):
         Body(room(), pose=(2.0, 3.2, 0.0))
+
+
+def test_contacts_of_one_push_count_as_one_push():
+    # Pressing against the east wall for half a second (a contact every 0.1 s physics step), then
+    # again 5 s later: seven contacts, two pushes.
+    from service.sim.simulator import pushes
+
+    b = Body(room())
+    for t in (0.0, 0.1, 0.2, 0.3, 0.4, 5.0, 5.1):
+        assert b.move((5.0, 2.0, 0.0), t=t)[1]
+    assert len(b.contacts) == 7 and pushes(b.contacts) == 2
+    assert pushes([]) == 0

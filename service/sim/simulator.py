@@ -248,6 +248,11 @@ class Summary:
     holes: int = 0
     loops_driven: int = 0
     loops_closed: int = 0
+    #: Pushes: the contacts grouped into episodes, a contact more than ``PUSH_GAP`` s after the one
+    #: before starting a new one. ``contacts`` counts blocked physics steps, so one push the robot
+    #: takes a while to stop counts many times (more in the whole stack, which hears of the stall
+    #: through a SIP, than in the stepped simulation).
+    pushes: int = 0
     #: Where the robot ended wedged (world frame, m), if it did: in its last ``WEDGED_TIME`` s it
     #: moved less than ``WEDGED_DISTANCE`` and touched something. An exploration that ends so has
     #: given up its last goals because the robot could not move, not because nothing was left.
@@ -270,7 +275,8 @@ class Summary:
             f"revisits {self.revisits}, missed {self.revisits_missed}",
             f"loops driven {self.loops_driven} (the world has {self.holes} holes), "
             f"closed by the map {self.loops_closed}",
-            f"distance driven {self.distance:.1f} m, contacts {self.contacts}, stuck {self.stuck}",
+            f"distance driven {self.distance:.1f} m, contacts {self.contacts} ({self.pushes} pushes), "
+            f"stuck {self.stuck}",
             f"regions entered {len(self.regions_visited)}/{regions}"
             + (f" (missed: {', '.join(self.regions_missed)})" if self.regions_missed else ""),
         ]
@@ -284,6 +290,13 @@ class Summary:
 
 
 WEDGED_TIME, WEDGED_DISTANCE = 60.0, 0.3  # s, m: see Summary.wedged
+PUSH_GAP = 1.0  # s: see Summary.pushes
+
+
+def pushes(contacts: list) -> int:
+    """How many episodes the contacts (each with its time ``t``, s) make (see :attr:`Summary.pushes`)."""
+    times = sorted(c.t for c in contacts)
+    return sum(1 for k, t in enumerate(times) if k == 0 or t - times[k - 1] > PUSH_GAP)
 
 
 def _wedged(truth: Track, contacts: list, end: float) -> tuple[float, float] | None:
@@ -325,7 +338,7 @@ def summarise(world: World, doc: dict, robot: SimRobot, odometry: Track, entered
         world=world.name, sim_time=sim_time, wall_time=wall_time, finished=finished,
         asrs=len(asrs), exits=len(exits), exits_unexplored=sum(e.get("to") is None for e in exits),
         cycles=cycles, true_cycles=tp, false_cycles=fp, revisits=rev, revisits_missed=rev - det,
-        distance=robot.body.distance, contacts=len(robot.body.contacts),
+        distance=robot.body.distance, contacts=len(robot.body.contacts), pushes=pushes(robot.body.contacts),
         stuck=explorer.counts["stuck"] if explorer else 0,
         exits_given_up=len(explorer.planner.memory.failed_exits) if explorer else 0,
         regions_visited=[n for n in names if n in visited],
