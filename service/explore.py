@@ -1656,6 +1656,11 @@ class Explorer:
             self._through_blocked_since = t
         return t - self._through_blocked_since >= p.through_blocked_time
 
+    def _seen(self, points: np.ndarray) -> np.ndarray:
+        """The scan ``points`` with those remembered from the last ``memory_time`` s (robot frame,
+        m; :meth:`_remember`), or ``points`` alone when the memory is not of this step."""
+        return self._near if len(self._near) >= len(points) else points
+
     def _rotate(self, bearing: float, points: np.ndarray, t: float, status: str,
                 track: bool = True) -> Command:
         """Turn on the spot by ``bearing`` (rad), backing off first if a surface is within the sweep."""
@@ -1663,7 +1668,7 @@ class Explorer:
             self._progress(abs(bearing), t)
             if self._stuck(t):
                 return self._start_recovery(points, t)
-        pts = self._near if len(self._near) >= len(points) else points
+        pts = self._seen(points)
         near = pts[np.hypot(pts[:, 0], pts[:, 1]) < self.p.turn_radius] if len(pts) else pts
         creep = 0.5 * self.p.recovery_speed
         if len(near) and (near[:, 0] > 0.0).all():
@@ -1683,7 +1688,7 @@ class Explorer:
     def _drive_to(self, target: tuple[float, float], pose: Pose, points: np.ndarray, t: float,
                   status: str, margin: float | None = None) -> Command:
         dist = math.hypot(target[0] - pose[0], target[1] - pose[1])
-        aim, remaining = self._aim(target, pose, t, self._near if len(self._near) >= len(points) else points)
+        aim, remaining = self._aim(target, pose, t, self._seen(points))
         self._progress(remaining, t)
         if self._stuck(t):
             return self._start_recovery(points, t)
