@@ -60,7 +60,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from filterpy.kalman import KalmanFilter, update
+from filterpy.kalman import KalmanFilter
 
 from mapper.icp import PointGrid, icp
 from mapper.jit import kernel
@@ -200,8 +200,8 @@ class Localiser:
 
     @property
     def pose(self) -> Pose:
-        x = self.kf.x
-        return (float(x[0]), float(x[1]), wrap(float(x[2])))
+        x, y, th = self.kf.x.tolist()
+        return (x, y, wrap(th))
 
     def predict(self, delta: Pose) -> Pose:
         """Move by the odometry increment ``delta`` (robot frame: m, m, rad); returns the prediction."""
@@ -212,8 +212,9 @@ class Localiser:
         trans = math.hypot(delta[0], delta[1])
         st = p.odom_sigma_floor_xy + p.odom_sigma_per_m * trans
         sr = p.odom_sigma_floor_theta + p.odom_sigma_per_rad * abs(delta[2]) + p.odom_sigma_per_m * trans
-        self.kf.predict(u=u, Q=np.diag([st * st, st * st, sr * sr]))
-        self.kf.x[2] = wrap(float(self.kf.x[2]))
+        kf = self.kf
+        kf.x, kf.P = _kalman_predict(kf.x, kf.P, u, np.diag([st * st, st * st, sr * sr]))
+        kf.x[2] = wrap(float(kf.x[2]))
         return self.pose
 
     def reference(self) -> dict:
@@ -360,9 +361,7 @@ class Localiser:
         d2 = _mahalanobis2(innov, kf.P + r)
         if d2 > self.p.gate_chi2:
             return d2
-        # filterpy's functional update: the class method's arithmetic (with H = I the products
-        # associate exactly), without its bookkeeping copies (40 -> 25 µs an update in the replay)
-        kf.x, kf.P = update(kf.x, kf.P, z, r, kf.H)
+        kf.x, kf.P = _kalman_update(kf.x, kf.P, z, r)
         kf.x[2] = wrap(float(kf.x[2]))
         return None
 
@@ -578,16 +577,41 @@ def _translation_match(
     return su - tw, sv - tw, q_u, q_v
 
 
+_I3 = np.eye(3)
+
+
+def _kalman_predict(
+    x: np.ndarray, p: np.ndarray, u: np.ndarray, q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """filterpy's ``KalmanFilter.predict(u, Q=q)`` with F = B = I (state ``x``: ASR frame, m, m,
+    rad; covariance ``p``), without its calls and copies: the same floating-point results bit for
+    bit. A product with I gives each entry plus 0.0 (a -0.0 becomes +0.0), hence the ``+ 0.0``."""
+    return (x + 0.0) + (u + 0.0), (p + 0.0) + q
+
+
+def _kalman_update(
+    x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """filterpy's functional ``update(x, P, z, R, H)`` with H = I (the measured pose ``z`` and
+    state ``x`` in the ASR frame, m, m, rad; covariances ``p``, ``r``): its arithmetic in its
+    order (Joseph form), without the products with H, which only add 0.0 to each entry (``+ 0.0``
+    keeps even a -0.0 as they leave it): the same results bit for bit, in half the time."""
+    hp = p + 0.0  # H P H^T and P H^T
+    k = np.dot(hp, np.linalg.inv(hp + r))
+    x = x + np.dot(k, z - (x + 0.0))
+    i_kh = _I3 - (k + 0.0)
+    return x, np.dot(np.dot(i_kh, p), i_kh.T) + np.dot(np.dot(k, r), k.T)
+
+
 def _mahalanobis2(y: np.ndarray, s: np.ndarray) -> float:
     """y^T S^-1 y for a 3-vector and a symmetric positive definite 3x3 S (closed form, no LAPACK call)."""
-    a, b, c = s[0, 0], s[0, 1], s[0, 2]
-    d, e, f = s[1, 1], s[1, 2], s[2, 2]
+    (a, b, c), (_, d, e), (_, _, f) = s.tolist()  # Python floats: the same arithmetic, faster
     # cofactors of the symmetric matrix [[a b c] [b d e] [c e f]]
     A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
     D, E, F = a * f - c * c, b * c - a * e, a * d - b * b
     det = a * A + b * B + c * C
     if det <= 0:
         return math.inf
-    y0, y1, y2 = float(y[0]), float(y[1]), float(y[2])
+    y0, y1, y2 = y.tolist()
     q = A * y0 * y0 + D * y1 * y1 + F * y2 * y2 + 2 * (B * y0 * y1 + C * y0 * y2 + E * y1 * y2)
     return float(q / det)
