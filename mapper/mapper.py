@@ -56,6 +56,7 @@ from __future__ import annotations
 import bisect
 import gc
 import math
+import struct
 import time
 
 import numpy as np
@@ -225,6 +226,10 @@ class Mapper:
         self.timing: dict[str, float] = {}
         self._builders: dict[int, AsrBuilder] = {}
         self._frozen: dict[int, shapely.Geometry] = {}  # matched ASRs: their polygon when first matched
+        # Per ASR: the area its growth is clipped to (_clip_closed_growth, ASR frame) and what it was
+        # made from (the match's placement and boundary, or the frozen polygon, which never changes):
+        # the same buffer is not recomputed for every view while neither changes.
+        self._clip_areas: dict[int, tuple[tuple, shapely.Geometry]] = {}
         self._odom_t: list[float] = []
         self._odom_pose: list[Pose] = []
         self._last_odom: Pose | None = None
@@ -571,13 +576,18 @@ class Mapper:
         match = self._asrs.get(a.duplicate_of) if a.duplicate_of is not None else None
         if match is not None and len(match.boundary) >= 3:
             rel = between(a.origin, match.origin)  # the match's frame seen from the duplicate's
-            area = shapely.make_valid(shapely.Polygon(transform_points(rel, match.boundary)))
+            key: tuple = ("match", struct.pack("3d", *rel), match.boundary.tobytes())
+            if (kept := self._clip_areas.get(a.id)) is None or kept[0] != key:
+                area = shapely.make_valid(shapely.Polygon(transform_points(rel, match.boundary)))
+                kept = self._clip_areas[a.id] = (key, area.buffer(self.params.duplicate_margin))
         elif a.id in self._frozen or any(o.duplicate_of == a.id for o in self._asrs.values()):
             # Not current when it was matched: unchanged since, until this first view back in it.
             area = self._frozen.setdefault(a.id, before)
+            if (kept := self._clip_areas.get(a.id)) is None or kept[0] != ("frozen",):
+                kept = self._clip_areas[a.id] = (("frozen",), area.buffer(self.params.duplicate_margin))
         else:
             return
-        b.clip_growth(before, area.buffer(self.params.duplicate_margin), pose[:2])
+        b.clip_growth(before, kept[1], pose[:2])
 
     def _hold_closures(self, b: AsrBuilder, before: shapely.Polygon, pose: Pose) -> None:
         """``CycleParams.hold_crosscheck``: refuse a view's growth of an ASR of an accepted cycle when
