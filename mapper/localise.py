@@ -79,7 +79,7 @@ _DENSE_GAP = 0.15
 _ICP_CELL = 0.15
 # What _build_reference makes (never changed in place): kept and restored as a whole.
 _REFERENCE = (
-    "_refs", "_ref_ready", "_hr", "_hr_shifted", "_hr_norm", "_alpha", "_uv0", "_huv", "_offsets",
+    "_refs", "_ref_ready", "_hr", "_hr_shifted", "_hr_norm", "_alpha", "_ra", "_uv0", "_huv", "_offsets",
     "_nuv", "_huv_norm", "_ref_points", "_ref_angles", "_ref_grid",
 )
 
@@ -262,6 +262,7 @@ class Localiser:
         self._hr_shifted = self._hr[self._rot_index]  # (shifts, bins): the rotation correlation is one matvec
         self._hr_norm = float(np.sqrt(self._hr @ self._hr))
         self._alpha = (_peak(self._hr)[0] + 0.5) * p.angle_bin
+        self._ra = _rot(self._alpha)  # the (u, v) axes in the ASR frame, for correct()
         tw = self._tw
         huv, u0, v0, nu, nv, norm_u, norm_v = _uv_histograms(
             pts, wts, self._alpha, p.max_translation, p.xy_bin, tw)
@@ -324,7 +325,8 @@ class Localiser:
             return None
         p = self.p
         kf = self.kf
-        x, y, th = float(kf.x[0]), float(kf.x[1]), wrap(float(kf.x[2]))
+        x, y, th = kf.x.tolist()
+        th = wrap(th)
         n_dirs, s, q_th, ang = _rotation_match(xy, p.direction_max_gap, th, self._hr_shifted, self._hr_norm)
         if n_dirs < 10:
             return None
@@ -338,14 +340,16 @@ class Localiser:
             p.prominence_full)
         shifts = np.array([su * p.xy_bin, sv * p.xy_bin])
         qs = (q_u, q_v)
-        ra = _rot(self._alpha)
+        ra = self._ra
         corr = ra @ shifts
         var_uv = [(p.match_sigma_xy / q) ** 2 if q >= p.min_quality else _NOT_MEASURED for q in qs]
         r = np.zeros((3, 3))
         r[:2, :2] = (ra * var_uv) @ ra.T
         r[2, 2] = (p.match_sigma_theta / q_th) ** 2
-        z = np.array([x + corr[0], y + corr[1], th + wrap(th_m - th)])
-        pose_m = (float(z[0]), float(z[1]), wrap(float(z[2])))
+        cx, cy = corr.tolist()
+        zx, zy, zth = x + cx, y + cy, th + wrap(th_m - th)
+        z = np.array([zx, zy, zth])
+        pose_m = (zx, zy, wrap(zth))
         d2 = self._fuse(z, r)
         if d2 is not None:
             return Match(pose_m, q_th, qs[0], qs[1], False, f"gate (d2 {d2:.1f})")
