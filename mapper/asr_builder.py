@@ -202,6 +202,19 @@ def _add_new(stores: list[np.ndarray], segs: list[np.ndarray], tol: float) -> li
     return out
 
 
+def _insert_rows(v: np.ndarray, at: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``np.insert(v, at, rows, axis=0)`` for points ``v`` (N, 2) and indices ``at`` already in
+    ascending order: row i of ``rows`` lands before ``v[at[i]]``, equal indices in their order. The
+    same array, without np.insert's sorting and general-case bookkeeping."""
+    pos = at + np.arange(len(at))  # where the inserted rows end up
+    out = np.empty((len(v) + len(at), 2))
+    old = np.ones(len(out), dtype=bool)
+    old[pos] = False
+    out[pos] = rows
+    out[old] = v
+    return out
+
+
 def _transform_segments(pose: Pose, seg: np.ndarray) -> np.ndarray:
     return transform_points(pose, seg.reshape(-1, 2)).reshape(-1, 2, 2)
 
@@ -447,7 +460,7 @@ class AsrBuilder:
         new = edges[e, 0] + tt[:, None] * (edges[e, 1] - edges[e, 0])
         # one vertex for coinciding insertions (the two ends of abutting exits)
         keep = np.append(True, np.hypot(*np.diff(new, axis=0).T) > tol)
-        out = np.insert(v, e[keep] + 1, new[keep], axis=0)
+        out = _insert_rows(v, e[keep] + 1, new[keep])
         # A vertex of the ring can lie within rounding of another of its edges (a pinch the union
         # left, valid by 1e-15 m); points inserted on that edge are rounded too and can cross it.
         # Then the ring stays as it was: its exits' edges are found by their labels alone.
