@@ -4,7 +4,8 @@ State :math:`\mathbf{x} = (x, y, \theta)` is the robot pose in the **ASR frame**
 covariance :math:`P`, in a filterpy :class:`~filterpy.kalman.KalmanFilter` (``dim_x = dim_z = 3``).
 
 **Prediction.** The odometry increment :math:`\delta = o_{k-1}^{-1} \oplus o_k` (robot frame) moves
-the pose to :math:`\hat{\mathbf{x}} = \mathbf{x} \oplus \delta`; filterpy's ``predict`` is given
+the pose to :math:`\hat{\mathbf{x}} = \mathbf{x} \oplus \delta`; filterpy's ``predict`` (its arithmetic,
+without its per-call overhead: :func:`_kalman_predict`) is given
 :math:`F = I`, :math:`B = I` and :math:`u = \hat{\mathbf{x}} - \mathbf{x}` (angle wrapped), so
 :math:`P \leftarrow P + Q` with :math:`Q = \mathrm{diag}(\sigma_t^2, \sigma_t^2, \sigma_r^2)`,
 :math:`\sigma_t = \sigma_{t0} + k_t |\delta_{xy}|`, :math:`\sigma_r = \sigma_{r0} + k_r |\delta_\theta|
@@ -35,7 +36,8 @@ in the ASR frame.
 
 **Update and gate.** Innovation :math:`\mathbf{y} = \mathbf{z} - \hat{\mathbf{x}}` (angle wrapped),
 :math:`S = P + R`; the match is rejected when :math:`\mathbf{y}^T S^{-1} \mathbf{y} >` ``gate_chi2``,
-else filterpy's ``update(z, R)`` (:math:`H = I`) fuses it.
+else filterpy's ``update(z, R)`` (:math:`H = I`; its arithmetic, without its overhead:
+:func:`_kalman_update`) fuses it.
 
 **Viewpoint refinement (beyond Röfer; ``refine``).** A viewpoint scan becomes part of the reference,
 so its pose error is inherited by every later match in the ASR, and by the frame of the next ASR
