@@ -92,6 +92,13 @@ class CycleParams:
     hindsight_hops: int = 1
     """How many topological hops counts as "neighbour" for hindsight acceptance."""
 
+    hindsight_margin: float = 0.1
+    """m. Beyond the paper (needs ``verify``): the crosscheck margin asked of a pair re-examined in
+    hindsight, at most ``crosscheck_margin``. Its neighbours on both sides have just been matched
+    (and verified), the correction of that match applied, and the pair must still verify by its
+    own surfaces: a shallow revisit beside an accepted one (``lab`` seed 1: ASR 30's centre 0.20 m
+    inside ASR 6, the next ASR, 31, matched 5, the ASR before 6) is the same place, not drift."""
+
     verify: bool = True
     """§7: confirm a match by aligning the two ASRs' surfaces (ICP on points sampled along their
     ``surface`` edges, in the global frame) and requiring a low residual."""

@@ -476,14 +476,17 @@ class GlobalMap:
         d = np.array([math.cos(axis), math.sin(axis)])
         return math.sqrt(max(float(d @ cov[:2, :2] @ d), 0.0))
 
-    def _verified(self, a: Alignment | None, n: int, m: int, near: bool = False) -> bool:
+    def _verified(self, a: Alignment | None, n: int, m: int, near: bool = False,
+                  margin: float | None = None) -> bool:
         """The alignment is good, and with it applied to n the centre crosscheck still passes: by
         ``verify_crosscheck_margin`` after an unaligned crosscheck passed, by ``crosscheck_margin``
-        for a ``near`` candidate (its aligned crosscheck is the only one)."""
+        for a ``near`` candidate (its aligned crosscheck is the only one), by ``margin`` (m) when
+        given (hindsight: ``hindsight_margin``)."""
         p = self.params
         if a is None:
             return False
-        margin = p.crosscheck_margin if near else min(p.crosscheck_margin, p.verify_crosscheck_margin)
+        if margin is None:
+            margin = p.crosscheck_margin if near else min(p.crosscheck_margin, p.verify_crosscheck_margin)
         moved = compose(a.correction, self.asrs[n].origin)
         poly_n, c_n = global_polygon(self.asrs[n], moved), global_centre(self.asrs[n], moved)
         poly_m, c_m = global_polygon(self.asrs[m]), global_centre(self.asrs[m])
@@ -600,10 +603,13 @@ class GlobalMap:
 
         The accepted match n -> m says how far the map had drifted there: ``correction`` (global
         frame) moves n onto m (identity without a surface alignment). Applied to a, with both ASRs
-        as they are now (grown since the rejection), the centre crosscheck is run again; a pair
-        that passes (and verifies, when ``verify``) is accepted with reason ``hindsight``.
+        as they are now (grown since the rejection), the centre crosscheck is run again (with
+        ``hindsight_margin`` when ``verify``); a pair that passes (and verifies, when ``verify``)
+        is accepted with reason ``hindsight``.
         """
         hops = self.params.hindsight_hops
+        p = self.params
+        margin = min(p.hindsight_margin, p.crosscheck_margin) if p.verify else p.crosscheck_margin
         near_n, near_m = self.topology.within(n, hops), self.topology.within(m, hops)
         events: list[Event] = []
         for a, b in sorted(self._rejected):
@@ -614,11 +620,11 @@ class GlobalMap:
             moved = compose(correction, self.asrs[a].origin)
             pa, ca = global_polygon(self.asrs[a], moved), global_centre(self.asrs[a], moved)
             pb, cb = global_polygon(self.asrs[b]), global_centre(self.asrs[b])
-            if not _mutual(pa, ca, pb, cb, self.params.crosscheck_margin):
+            if not _mutual(pa, ca, pb, cb, margin):
                 continue
             del self._rejected[(a, b)]
             align = self._align(a, b) if (self.params.verify or self.params.realign) else None
-            if self.params.verify and not self._verified(align, a, b):
+            if self.params.verify and not self._verified(align, a, b, margin=margin):
                 continue
             events += self._close(t, a, b, ca, cb, iou(pa, pb), "hindsight", align)
         return events

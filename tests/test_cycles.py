@@ -145,6 +145,25 @@ def test_a_misaligned_overlap_fails_the_crosscheck_and_is_accepted_in_hindsight(
     assert gm.asrs[6].duplicate_of == 1
 
 
+@pytest.mark.parametrize("margin", [0.1, 0.3])
+def test_a_shallow_revisit_beside_an_accepted_one_is_closed_in_hindsight_with_the_hindsight_margin(margin):
+    # 6 is the room's western 2.2 m: with the drift undone, 1's centre (x = 2) lies only 0.2 m
+    # inside it, short of the 0.3 m crosscheck margin. Once 7 (entered from 6) matches 2 (entered
+    # from 1), hindsight asks hindsight_margin: 0.1 m closes 6 onto 1 (its walls verify it), the
+    # full 0.3 m leaves it open, as before the margin existed.
+    route = [*HINDSIGHT[:5], ((0, 0, 2.2, 4), (0.5, 2.0, 0.0), "E"), HINDSIGHT[6]]
+    gm = GlobalMap(FULL.replace(align_failed_crosscheck=False, hindsight_margin=margin))
+    events = drive(gm, route, per_step=WEST)
+    assert (6, 1, "centre-crosscheck") in [(e.asr, e.matches, e.reason) for e in events
+                                           if isinstance(e, CycleRejected)]
+    if margin < 0.2:
+        assert accepted(events) == [(7, 2, "centre-crosscheck"), (6, 1, "hindsight")]
+        assert gm.asrs[6].duplicate_of == 1
+    else:
+        assert accepted(events) == [(7, 2, "centre-crosscheck")]
+        assert gm.asrs[6].duplicate_of is None
+
+
 def test_a_revisit_whose_crosscheck_drift_fails_is_accepted_once_aligned_by_its_surfaces():
     gm = GlobalMap(FULL)
     events = drive(gm, HINDSIGHT, per_step=WEST)
