@@ -25,7 +25,6 @@ Every gap's candidates are evaluated in one compiled loop (:mod:`mapper.jit`).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -172,79 +171,159 @@ def _shortest(
     return best, best_len, qb, tqb
 
 
+_LABELS = np.array([EXIT, CLOSED, OPEN], dtype=object)  # by the codes :func:`_covers` returns
+
+
 def find_covers(surf: Surfaces, p: MapperParams) -> Covers:
-    """Covers of every gap of one view; see the module docstring."""
+    """Covers of every gap of one view; see the module docstring (the work: :func:`_covers`)."""
     seg = surf.segments
-    m = len(seg)
-    empty = np.zeros((0, 2))
-    if m < 2:
+    if len(seg) < 2:
+        empty = np.zeros((0, 2))
         z = np.zeros(0)
         return Covers(empty, empty, np.zeros(0, dtype=object), z, z, np.zeros(0, dtype=int))
-    o = np.asarray(surf.points.origin)
-    gap = np.flatnonzero(surf.cluster[:-1] != surf.cluster[1:])  # gap g lies between gap[g] and +1
-    no_ret = surf.points.gap_no_return[surf.pidx[gap + 1, 0]]
-    end_j = seg[gap, 1]
-    start_n = seg[gap + 1, 0]
-    right = np.hypot(*(end_j - o).T) <= np.hypot(*(start_n - o).T)  # P = end of j, opening CCW
-    pp = np.where(right[:, None], end_j, start_n)
-
-    # In a thick wall the occluding end is the far edge of a jamb's side: the same gap covered from
-    # the side's other end (the jamb's edge facing the robot) is as short, and it is the doorway
-    # the robot meets first. Take it when no more than ``_ALT_SLACK`` longer and nearer the laser.
-    # Each gap's search is independent of the others': both ends' are one call.
-    alt = np.where(right[:, None], seg[gap, 0], seg[gap + 1, 1])
-    near = np.flatnonzero(np.hypot(*(alt - pp).T) <= _JAMB_MAX)
-    g = len(gap)
-    found = _shortest(
-        seg, o, np.concatenate([pp, alt[near]]), np.concatenate([gap, gap[near]]),
-        np.concatenate([right, right[near]]), p.visibility_tolerance,
+    a, b, code, lo, hi, occl, through = _covers(
+        seg, surf.cluster, surf.pidx, surf.points.gap_no_return, float(surf.points.origin[0]),
+        float(surf.points.origin[1]), p.visibility_tolerance, p.passage_width, p.rear_closure,
     )
-    best, best_len, qb, tqb = (f[:g] for f in found)
-    pos_p = np.where(right, 2 * gap + 1, 2 * gap + 2).astype(float)
-    has = np.isfinite(best_len[near])
-    jamb = near[has]
-    if len(jamb):
-        a_best, a_len, a_qb, a_tqb = (f[g:][has] for f in found)
-        nearer = np.hypot(*(0.5 * (alt[jamb] + a_qb) - o).T) < np.hypot(*(0.5 * (pp[jamb] + qb[jamb]) - o).T)
-        use = np.isfinite(a_len) & (a_len <= best_len[jamb] + _ALT_SLACK) & nearer
-        j = jamb[use]
-        pp[j], best[j], best_len[j] = alt[j], a_best[use], a_len[use]
-        qb[j], tqb[j] = a_qb[use], a_tqb[use]
-        pos_p[j] = np.where(right[j], 2 * gap[j], 2 * gap[j] + 3)
-    label = np.where(best_len >= p.passage_width, EXIT, CLOSED).astype(object)
-    label[~np.isfinite(best_len)] = OPEN
-    pos_q = 2 * best + tqb
-    a = np.where(right[:, None], pp, qb)
-    b = np.where(right[:, None], qb, pp)
-    lo, hi = np.minimum(pos_p, pos_q), np.maximum(pos_p, pos_q)
-    occl = np.where(right, 0, 1)
-    # an open gap, or a no-return gap: the segment joining the surfaces' ends
-    join = (label == OPEN) | no_ret
-    a[join], b[join] = end_j[join], start_n[join]
-    lo[join], hi[join] = 2 * gap[join] + 1, 2 * gap[join] + 2
-    occl[no_ret] = -1
-    wide = np.hypot(*(b - a).T) >= p.passage_width
-    label[no_ret] = np.where(wide[no_ret], EXIT, CLOSED)
-    # The robot standing in a doorway: the exit across it runs through its own footprint (within
-    # rear_closure of the robot centre). That is the way in or on, not a boundary of what it sees;
-    # truncated there, the view would be a sliver behind the robot, the next scan would cross its
-    # front and make another ASR, and so on until the robot cleared the doorway.
-    at_robot = segment_distance(np.zeros(len(a)), np.zeros(len(a)), np.stack([a, b], axis=1))
-    keep = ~((label == EXIT) & (at_robot < p.rear_closure))
-    c = _select(Covers(a[keep], b[keep], label[keep], lo[keep], hi[keep], occl[keep]))
-    return c if keep.all() else dataclasses.replace(c, through_robot=int(np.count_nonzero(~keep)))
+    return Covers(a, b, _LABELS[code], lo, hi, occl, int(through))
 
 
-def _select(c: Covers) -> Covers:
-    """Keep the outermost of nested covers; identical or crossing later ones are dropped."""
-    if len(c) == 0:
-        return c
-    order = np.lexsort((-c.hi, c.lo))
-    keep = []
+@kernel
+def _covers(
+    seg: np.ndarray, cluster: np.ndarray, pidx: np.ndarray, gap_no_return: np.ndarray, ox: float,
+    oy: float, tol: float, passage_width: float, rear_closure: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """:func:`find_covers`' work on one view's surfaces ``seg`` (M >= 2, robot frame, m; the laser
+    at (ox, oy)), compiled (:mod:`mapper.jit`). Replaces the numpy form, per gap g between surfaces
+    ``gap[g]`` and ``gap[g] + 1`` (``flatnonzero(cluster[:-1] != cluster[1:])``)::
+
+        right = hypot(*(end_j - o).T) <= hypot(*(start_n - o).T)   # P = end of j, opening CCW
+        pp = where(right, end_j, start_n); alt = the jamb side's other end
+        near = flatnonzero(hypot(*(alt - pp).T) <= _JAMB_MAX)
+        _shortest(seg, o, concatenate([pp, alt[near]]), ...)        # both ends' searches, one call
+        # the jamb's cover taken where no more than _ALT_SLACK longer and its midpoint nearer o
+        label = where(best_len >= passage_width, EXIT, CLOSED); OPEN where none visible
+        a, b = where(right, (pp, qb), (qb, pp)); lo, hi = sweep positions (module docstring)
+        # open and no-return gaps: the segment joining the surfaces' ends (no-return: EXIT when
+        # at least passage_width long); exits within rear_closure (m) of the robot left out
+        # the outermost of nested covers: in lexsort((-hi, lo)) order, each kept unless it starts
+        # before the last kept one ends (identical or crossing covers dropped)
+
+    Returns the kept covers' a, b (N, 2), label codes (N,) (0 exit, 1 surface, 2 unknown;
+    ``_LABELS``), sweep positions lo, hi (N,), occluding end (N,) (0 a, 1 b, -1 no-return) and how
+    many exits ran through the robot. hypot is libm's, as numpy's ``np.hypot``."""
+    m = seg.shape[0]
+    ng = 0
+    for i in range(m - 1):
+        if cluster[i] != cluster[i + 1]:
+            ng += 1
+    gap = np.empty(ng, dtype=np.int64)
+    ng = 0
+    for i in range(m - 1):
+        if cluster[i] != cluster[i + 1]:
+            gap[ng] = i
+            ng += 1
+    right = np.empty(ng, dtype=np.bool_)
+    no_ret = np.empty(ng, dtype=np.bool_)
+    pp = np.empty((ng, 2))
+    alt = np.empty((ng, 2))
+    n_near = 0
+    near_of = np.empty(ng, dtype=np.int64)  # which gap each jamb search belongs to
+    for g in range(ng):
+        j = gap[g]
+        no_ret[g] = gap_no_return[pidx[j + 1, 0]]
+        right[g] = (np.hypot(seg[j, 1, 0] - ox, seg[j, 1, 1] - oy)
+                    <= np.hypot(seg[j + 1, 0, 0] - ox, seg[j + 1, 0, 1] - oy))
+        if right[g]:
+            pp[g, 0], pp[g, 1] = seg[j, 1, 0], seg[j, 1, 1]
+            alt[g, 0], alt[g, 1] = seg[j, 0, 0], seg[j, 0, 1]
+        else:
+            pp[g, 0], pp[g, 1] = seg[j + 1, 0, 0], seg[j + 1, 0, 1]
+            alt[g, 0], alt[g, 1] = seg[j + 1, 1, 0], seg[j + 1, 1, 1]
+        if np.hypot(alt[g, 0] - pp[g, 0], alt[g, 1] - pp[g, 1]) <= _JAMB_MAX:
+            near_of[n_near] = g
+            n_near += 1
+    n_all = ng + n_near
+    pp2 = np.empty((n_all, 2))
+    gap2 = np.empty(n_all, dtype=np.int64)
+    right2 = np.empty(n_all, dtype=np.bool_)
+    for g in range(ng):
+        pp2[g, 0], pp2[g, 1], gap2[g], right2[g] = pp[g, 0], pp[g, 1], gap[g], right[g]
+    for r in range(n_near):
+        g = near_of[r]
+        pp2[ng + r, 0], pp2[ng + r, 1], gap2[ng + r], right2[ng + r] = alt[g, 0], alt[g, 1], gap[g], right[g]
+    o = np.empty(2)
+    o[0], o[1] = ox, oy
+    best, best_len, qb, tqb = _shortest(seg, o, pp2, gap2, right2, tol)
+    pos_p = np.empty(ng)
+    for g in range(ng):
+        pos_p[g] = 2 * gap[g] + 1 if right[g] else 2 * gap[g] + 2
+    for r in range(n_near):
+        g, h = near_of[r], ng + r
+        if not np.isfinite(best_len[h]):
+            continue
+        nearer = (np.hypot(0.5 * (alt[g, 0] + qb[h, 0]) - ox, 0.5 * (alt[g, 1] + qb[h, 1]) - oy)
+                  < np.hypot(0.5 * (pp[g, 0] + qb[g, 0]) - ox, 0.5 * (pp[g, 1] + qb[g, 1]) - oy))
+        if best_len[h] <= best_len[g] + _ALT_SLACK and nearer:
+            pp[g, 0], pp[g, 1], best[g], best_len[g] = alt[g, 0], alt[g, 1], best[h], best_len[h]
+            qb[g, 0], qb[g, 1], tqb[g] = qb[h, 0], qb[h, 1], tqb[h]
+            pos_p[g] = 2 * gap[g] if right[g] else 2 * gap[g] + 3
+    a = np.empty((ng, 2))
+    b = np.empty((ng, 2))
+    code = np.empty(ng, dtype=np.int64)
+    lo = np.empty(ng)
+    hi = np.empty(ng)
+    occl = np.empty(ng, dtype=np.int64)
+    keep = np.empty(ng, dtype=np.bool_)
+    n_keep = 0
+    for g in range(ng):
+        j = gap[g]
+        if not np.isfinite(best_len[g]):
+            code[g] = 2
+        else:
+            code[g] = 0 if best_len[g] >= passage_width else 1
+        pos_q = 2 * best[g] + tqb[g]
+        if right[g]:
+            a[g, 0], a[g, 1], b[g, 0], b[g, 1] = pp[g, 0], pp[g, 1], qb[g, 0], qb[g, 1]
+        else:
+            a[g, 0], a[g, 1], b[g, 0], b[g, 1] = qb[g, 0], qb[g, 1], pp[g, 0], pp[g, 1]
+        lo[g], hi[g] = min(pos_p[g], pos_q), max(pos_p[g], pos_q)
+        occl[g] = 0 if right[g] else 1
+        if code[g] == 2 or no_ret[g]:  # the segment joining the surfaces' ends
+            a[g, 0], a[g, 1] = seg[j, 1, 0], seg[j, 1, 1]
+            b[g, 0], b[g, 1] = seg[j + 1, 0, 0], seg[j + 1, 0, 1]
+            lo[g], hi[g] = 2 * j + 1, 2 * j + 2
+        if no_ret[g]:
+            occl[g] = -1
+            code[g] = 0 if np.hypot(b[g, 0] - a[g, 0], b[g, 1] - a[g, 1]) >= passage_width else 1
+        abx, aby = b[g, 0] - a[g, 0], b[g, 1] - a[g, 1]
+        qx, qy, _ = closest_point(0.0, 0.0, a[g, 0], a[g, 1], abx, aby)
+        keep[g] = not (code[g] == 0 and np.hypot(qx - 0.0, qy - 0.0) < rear_closure)
+        if keep[g]:
+            n_keep += 1
+    # the outermost of nested covers (order: lexsort((-hi, lo)), stable)
+    kept = np.empty(n_keep, dtype=np.int64)
+    n_keep = 0
+    for g in range(ng):
+        if keep[g]:
+            kept[n_keep] = g
+            n_keep += 1
+    neg_hi = np.empty(n_keep)
+    for i in range(n_keep):
+        neg_hi[i] = -hi[kept[i]]
+    o1 = np.argsort(neg_hi, kind="mergesort")
+    lo1 = np.empty(n_keep)
+    for i in range(n_keep):
+        lo1[i] = lo[kept[o1[i]]]
+    o2 = np.argsort(lo1, kind="mergesort")
+    sel = np.empty(n_keep, dtype=np.int64)
+    n_sel = 0
     last_hi = -np.inf
-    for i in order.tolist():  # one step per gap, not per beam
-        if c.lo[i] >= last_hi - 1e-9:
-            keep.append(i)
-            last_hi = c.hi[i]
-    k = np.asarray(keep, dtype=int)
-    return Covers(c.a[k], c.b[k], c.label[k], c.lo[k], c.hi[k], c.occluding[k])
+    for i in range(n_keep):
+        g = kept[o1[o2[i]]]
+        if lo[g] >= last_hi - 1e-9:
+            sel[n_sel] = g
+            n_sel += 1
+            last_hi = hi[g]
+    sel = sel[:n_sel]
+    return a[sel], b[sel], code[sel], lo[sel], hi[sel], occl[sel], ng - n_keep
