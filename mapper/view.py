@@ -20,6 +20,7 @@ import numpy as np
 import shapely
 
 from mapper.exits import CLOSED, EXIT, Covers, find_covers
+from mapper.jit import kernel
 from mapper.lines import Surfaces
 from mapper.params import MapperParams
 
@@ -51,42 +52,20 @@ def build_view(surf: Surfaces, p: MapperParams, covers: Covers | None = None) ->
     """The truncated, labelled view polygon of one scan; see the module docstring."""
     if covers is None:
         covers = find_covers(surf, p)
-    seg = surf.segments
-    m = len(seg)
-    t0, t1 = np.zeros(m), np.ones(m)
-    alive = np.ones(m, dtype=bool)
-    if len(covers):
-        lo, hi = covers.lo, covers.hi
-        k2 = 2.0 * np.arange(m)
-        # surfaces wholly inside a cover were seen through it; those it lands on are trimmed
-        alive = ~((k2[None, :] > lo[:, None] + 1e-9) & (k2[None, :] + 1 < hi[:, None] - 1e-9)).any(axis=0)
-        klo, khi = (lo // 2).astype(int), (hi // 2).astype(int)
-        a_ok = (klo < m) & (lo - 2 * klo <= 1.0)
-        b_ok = (khi < m) & (hi - 2 * khi <= 1.0)
-        np.minimum.at(t1, klo[a_ok], (lo - 2 * klo)[a_ok])
-        np.maximum.at(t0, khi[b_ok], (hi - 2 * khi)[b_ok])
-    alive &= t1 >= t0 - 1e-9
+    v, keep, surfaces, ends, same = _ring(surf.segments, covers.lo, covers.hi, surf.cluster, p.rear_closure)
     starts = dict(zip(np.round(covers.lo, 9).tolist(), covers.label.tolist(), strict=True))
-
-    kk = np.flatnonzero(alive)
-    d = seg[kk, 1] - seg[kk, 0]
-    a = seg[kk, 0] + t0[kk, None] * d
-    b = seg[kk, 0] + t1[kk, None] * d
-    v = np.empty((1 + 2 * len(kk), 2))
-    v[0] = (-p.rear_closure, 0.0)
-    v[1::2], v[2::2] = a, b
-    ends = np.round(2 * kk + t1[kk], 9).tolist()
-    same = (surf.cluster[kk[1:]] == surf.cluster[kk[:-1]]).tolist()
     labels = [UNKNOWN]
-    for i, end in enumerate(ends):  # one step per surface, not per beam
+    same = same.tolist()
+    for i, end in enumerate(np.round(ends, 9).tolist()):  # one step per surface, not per beam
         lab = starts.get(end)
         if lab is None:
             lab = SURFACE if i < len(same) and same[i] else UNKNOWN
         labels += (SURFACE, lab)
     labels[-1] = UNKNOWN  # from the last surface back round the unseen rear
-    v, labels = _drop_repeats(v, labels)
+    if not keep.all():  # zero-length edges: the surviving edge keeps the non-degenerate one's label
+        v = v[keep]
+        labels = [lab for lab, k in zip(labels, keep.tolist(), strict=True) if k]
 
-    surfaces = np.stack([a, b], axis=1)
     closed = covers.label == CLOSED
     if closed.any():
         surfaces = np.concatenate([surfaces, np.stack([covers.a[closed], covers.b[closed]], axis=1)])
@@ -95,16 +74,76 @@ def build_view(surf: Surfaces, p: MapperParams, covers: Covers | None = None) ->
     return View(v, labels, valid_polygon(v), surfaces, exits, covers.through_robot > 0)
 
 
-def _drop_repeats(v: np.ndarray, labels: list[str]) -> tuple[np.ndarray, list[str]]:
-    """Remove zero-length edges; the surviving edge keeps the label of the non-degenerate one."""
-    d = np.concatenate([v[1:], v[:1]]) - v
-    step = np.hypot(d[:, 0], d[:, 1])
-    if (step > 1e-9).all():
-        return v, labels
-    keep = step > 1e-9  # vertex i is kept when its outgoing edge has length
-    out_v = v[keep]
-    out_l = [lab for lab, k in zip(labels, keep.tolist(), strict=True) if k]
-    return out_v, out_l
+@kernel
+def _ring(
+    seg: np.ndarray, lo: np.ndarray, hi: np.ndarray, cluster: np.ndarray, rear_closure: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`build_view`'s ring from the surfaces ``seg`` (M, 2, 2) and the covers' sweep positions
+    ``lo``, ``hi`` (N,) (robot frame, m), compiled (:mod:`mapper.jit`). Replaces the numpy form::
+
+        alive = ~((k2[None, :] > lo[:, None] + 1e-9) & (k2[None, :] + 1 < hi[:, None] - 1e-9)).any(axis=0)
+        np.minimum.at(t1, klo[a_ok], (lo - 2 * klo)[a_ok])   # surfaces a cover lands on: trimmed
+        np.maximum.at(t0, khi[b_ok], (hi - 2 * khi)[b_ok])
+        alive &= t1 >= t0 - 1e-9; kk = flatnonzero(alive)
+        v = [(-rear_closure, 0), a_0, b_0, a_1, ...]; a, b = seg[kk, 0] + t0 / t1 * d
+        keep = hypot(*(roll(v, -1) - v).T) > 1e-9               # no zero-length edges
+
+    Returns the vertices v (1 + 2 K, 2), which of them to keep (their outgoing edge has length),
+    the visible surface parts (K, 2, 2), each part's end sweep position ``2 kk + t1`` (K,) (not yet
+    rounded) and whether consecutive parts share a breakpoint cluster (K - 1,). hypot is libm's, as
+    numpy's ``np.hypot``."""
+    m = seg.shape[0]
+    nc = lo.shape[0]
+    t0, t1 = np.zeros(m), np.ones(m)
+    alive = np.ones(m, dtype=np.bool_)
+    for k in range(m):
+        k2 = 2.0 * k
+        for c in range(nc):
+            if k2 > lo[c] + 1e-9 and k2 + 1 < hi[c] - 1e-9:
+                alive[k] = False
+                break
+    for c in range(nc):  # in order, as np.minimum.at
+        klo = int(lo[c] // 2)
+        f = lo[c] - 2 * klo
+        if klo < m and f <= 1.0:
+            t1[klo] = min(t1[klo], f)
+    for c in range(nc):
+        khi = int(hi[c] // 2)
+        f = hi[c] - 2 * khi
+        if khi < m and f <= 1.0:
+            t0[khi] = max(t0[khi], f)
+    n = 0
+    for k in range(m):
+        alive[k] = alive[k] and t1[k] >= t0[k] - 1e-9
+        if alive[k]:
+            n += 1
+    kk = np.empty(n, dtype=np.int64)
+    n = 0
+    for k in range(m):
+        if alive[k]:
+            kk[n] = k
+            n += 1
+    v = np.empty((1 + 2 * n, 2))
+    v[0, 0], v[0, 1] = -rear_closure, 0.0
+    surfaces = np.empty((n, 2, 2))
+    ends = np.empty(n)
+    same = np.empty(max(n - 1, 0), dtype=np.bool_)
+    for i in range(n):
+        k = kk[i]
+        dx, dy = seg[k, 1, 0] - seg[k, 0, 0], seg[k, 1, 1] - seg[k, 0, 1]
+        surfaces[i, 0, 0], surfaces[i, 0, 1] = seg[k, 0, 0] + t0[k] * dx, seg[k, 0, 1] + t0[k] * dy
+        surfaces[i, 1, 0], surfaces[i, 1, 1] = seg[k, 0, 0] + t1[k] * dx, seg[k, 0, 1] + t1[k] * dy
+        v[1 + 2 * i, 0], v[1 + 2 * i, 1] = surfaces[i, 0, 0], surfaces[i, 0, 1]
+        v[2 + 2 * i, 0], v[2 + 2 * i, 1] = surfaces[i, 1, 0], surfaces[i, 1, 1]
+        ends[i] = 2 * k + t1[k]
+        if i > 0:
+            same[i - 1] = cluster[k] == cluster[kk[i - 1]]
+    nv = v.shape[0]
+    keep = np.empty(nv, dtype=np.bool_)
+    for i in range(nv):
+        nxt = i + 1 if i + 1 < nv else 0
+        keep[i] = np.hypot(v[nxt, 0] - v[i, 0], v[nxt, 1] - v[i, 1]) > 1e-9
+    return v, keep, surfaces, ends, same
 
 
 def valid_polygon(v: np.ndarray) -> shapely.Polygon:
