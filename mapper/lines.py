@@ -185,30 +185,59 @@ def _fit(xy: np.ndarray, s: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.n
     return c, u
 
 
-def _snap_corners(seg: np.ndarray, cluster: np.ndarray, c: np.ndarray, u: np.ndarray, snap: float) -> None:
-    """Join neighbouring pieces of one cluster at their lines' intersection when it is near both ends."""
-    same = cluster[:-1] == cluster[1:]
-    den = _cross(u[:-1], u[1:])
-    ok = same & (np.abs(den) > math.sin(math.radians(20.0)))
-    if not ok.any():
-        return
-    t = np.divide(_cross(c[1:] - c[:-1], u[1:]), den, out=np.zeros_like(den), where=ok)
-    x = c[:-1] + t[:, None] * u[:-1]
-    near = (np.hypot(*(x - seg[:-1, 1]).T) < snap) & (np.hypot(*(x - seg[1:, 0]).T) < snap)
-    j = np.flatnonzero(ok & near)
-    seg[j, 1] = x[j]
-    seg[j + 1, 0] = x[j]
-
-
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """z of the 2-D cross products of rows (np.cross on 2-vectors is deprecated and slow)."""
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
-def _endpoints(xy: np.ndarray, s: np.ndarray, e: np.ndarray, c: np.ndarray, u: np.ndarray) -> np.ndarray:
-    ta = np.einsum("ij,ij->i", xy[s] - c, u)
-    tb = np.einsum("ij,ij->i", xy[e] - c, u)
-    return np.stack([c + ta[:, None] * u, c + tb[:, None] * u], axis=1)
+_SNAP_SIN = math.sin(math.radians(20.0))  # pieces' lines meeting at less than 20 degrees: no corner
+
+
+@kernel
+def _ends(xy: np.ndarray, s: np.ndarray, e: np.ndarray, c: np.ndarray, u: np.ndarray, cluster: np.ndarray,
+          ox: float, oy: float, snap: float, snap_sin: float, half: float) -> np.ndarray:
+    """The surfaces (M, 2, 2) of the pieces (points ``s[i]..e[i]``, lines through ``c`` along unit
+    ``u``), robot frame (m), compiled (:mod:`mapper.jit`). Replaces the numpy form::
+
+        ta = einsum("ij,ij->i", xy[s] - c, u); seg = stack([c + ta u, c + tb u])  # ends projected
+        # corners: neighbours of one cluster whose lines cross at more than asin(snap_sin) join at
+        # the intersection x when it is within ``snap`` (m) of both ends (hypot, libm's as numpy's)
+        t = cross(c[1:] - c[:-1], u[1:]) / cross(u[:-1], u[1:]); x = c[:-1] + t u[:-1]
+        seg[j, 1] = seg[j + 1, 0] = x[j]
+        # a lone return (s == e, a leg): a surface 2 ``half`` m long across its beam from the laser
+        # at (ox, oy), centred on the point
+        t = [-dy, dx] / max(hypot(dx, dy), 1e-9); seg = [xy - half t, xy + half t]
+
+    The corner steps are independent (step i reads seg[i, 1] and seg[i + 1, 0] before writing
+    them), so one pass in order gives what the vectorised form gave."""
+    m = s.shape[0]
+    seg = np.empty((m, 2, 2))
+    for i in range(m):
+        ta = (xy[s[i], 0] - c[i, 0]) * u[i, 0] + (xy[s[i], 1] - c[i, 1]) * u[i, 1]
+        tb = (xy[e[i], 0] - c[i, 0]) * u[i, 0] + (xy[e[i], 1] - c[i, 1]) * u[i, 1]
+        seg[i, 0, 0], seg[i, 0, 1] = c[i, 0] + ta * u[i, 0], c[i, 1] + ta * u[i, 1]
+        seg[i, 1, 0], seg[i, 1, 1] = c[i, 0] + tb * u[i, 0], c[i, 1] + tb * u[i, 1]
+    for i in range(m - 1):
+        den = u[i, 0] * u[i + 1, 1] - u[i, 1] * u[i + 1, 0]
+        if cluster[i] != cluster[i + 1] or not abs(den) > snap_sin:
+            continue
+        dcx, dcy = c[i + 1, 0] - c[i, 0], c[i + 1, 1] - c[i, 1]
+        t = (dcx * u[i + 1, 1] - dcy * u[i + 1, 0]) / den
+        x0, x1 = c[i, 0] + t * u[i, 0], c[i, 1] + t * u[i, 1]
+        if (np.hypot(x0 - seg[i, 1, 0], x1 - seg[i, 1, 1]) < snap
+                and np.hypot(x0 - seg[i + 1, 0, 0], x1 - seg[i + 1, 0, 1]) < snap):
+            seg[i, 1, 0], seg[i, 1, 1] = x0, x1
+            seg[i + 1, 0, 0], seg[i + 1, 0, 1] = x0, x1
+    for i in range(m):
+        if s[i] != e[i]:
+            continue
+        px, py = xy[s[i], 0], xy[s[i], 1]
+        dx, dy = px - ox, py - oy
+        n = max(np.hypot(dx, dy), 1e-9)
+        tx, ty = -dy / n, dx / n
+        seg[i, 0, 0], seg[i, 0, 1] = px - half * tx, py - half * ty
+        seg[i, 1, 0], seg[i, 1, 1] = px + half * tx, py + half * ty
+    return seg
 
 
 def extract_surfaces(pts: ScanPoints, p: MapperParams) -> Surfaces:
@@ -249,16 +278,7 @@ def extract_surfaces(pts: ScanPoints, p: MapperParams) -> Surfaces:
         bridge[1:-1] = (e - s == 1)[1:-1] & same[:-1] & same[1:]
         if bridge.any():
             s, e, cluster, c, u = s[~bridge], e[~bridge], cluster[~bridge], c[~bridge], u[~bridge]
-    seg = _endpoints(xy, s, e, c, u)
-    if len(s) > 1:
-        _snap_corners(seg, cluster, c, u, p.corner_snap)
-    single = s == e
-    if single.any():
-        # a lone return (a leg): a short surface across its beam, centred on the point
-        d = xy[s[single]] - np.asarray(pts.origin)
-        t = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)[:, None]
-        h = 0.5 * p.point_surface_length
-        ctr = xy[s[single]]
-        seg[single] = np.stack([ctr - h * t, ctr + h * t], axis=1)
+    seg = _ends(xy, s, e, c, u, cluster, float(pts.origin[0]), float(pts.origin[1]), p.corner_snap,
+                _SNAP_SIN, 0.5 * p.point_surface_length)
     beams = np.stack([pts.beam[s], pts.beam[e]], axis=1)
     return Surfaces(seg, beams, np.stack([s, e], axis=1), cluster, pts)
