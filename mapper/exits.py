@@ -275,7 +275,6 @@ def _covers(
     hi = np.empty(ng)
     occl = np.empty(ng, dtype=np.int64)
     keep = np.empty(ng, dtype=np.bool_)
-    n_keep = 0
     for g in range(ng):
         j = gap[g]
         if not np.isfinite(best_len[g]):
@@ -299,15 +298,9 @@ def _covers(
         abx, aby = b[g, 0] - a[g, 0], b[g, 1] - a[g, 1]
         qx, qy, _ = closest_point(0.0, 0.0, a[g, 0], a[g, 1], abx, aby)
         keep[g] = not (code[g] == 0 and np.hypot(qx - 0.0, qy - 0.0) < rear_closure)
-        if keep[g]:
-            n_keep += 1
     # the outermost of nested covers (order: lexsort((-hi, lo)), stable)
-    kept = np.empty(n_keep, dtype=np.int64)
-    n_keep = 0
-    for g in range(ng):
-        if keep[g]:
-            kept[n_keep] = g
-            n_keep += 1
+    kept = np.flatnonzero(keep)
+    n_keep = len(kept)
     neg_hi = np.empty(n_keep)
     for i in range(n_keep):
         neg_hi[i] = -hi[kept[i]]

@@ -112,17 +112,10 @@ def _ring(
         f = hi[c] - 2 * khi
         if khi < m and f <= 1.0:
             t0[khi] = max(t0[khi], f)
-    n = 0
     for k in range(m):
         alive[k] = alive[k] and t1[k] >= t0[k] - 1e-9
-        if alive[k]:
-            n += 1
-    kk = np.empty(n, dtype=np.int64)
-    n = 0
-    for k in range(m):
-        if alive[k]:
-            kk[n] = k
-            n += 1
+    kk = np.flatnonzero(alive)
+    n = len(kk)
     v = np.empty((1 + 2 * n, 2))
     v[0, 0], v[0, 1] = -rear_closure, 0.0
     surfaces = np.empty((n, 2, 2))
