@@ -212,17 +212,8 @@ def _covers(
     Returns the kept covers' a, b (N, 2), label codes (N,) (0 exit, 1 surface, 2 unknown;
     ``_LABELS``), sweep positions lo, hi (N,), occluding end (N,) (0 a, 1 b, -1 no-return) and how
     many exits ran through the robot. hypot is libm's, as numpy's ``np.hypot``."""
-    m = seg.shape[0]
-    ng = 0
-    for i in range(m - 1):
-        if cluster[i] != cluster[i + 1]:
-            ng += 1
-    gap = np.empty(ng, dtype=np.int64)
-    ng = 0
-    for i in range(m - 1):
-        if cluster[i] != cluster[i + 1]:
-            gap[ng] = i
-            ng += 1
+    gap = np.flatnonzero(cluster[:-1] != cluster[1:])
+    ng = len(gap)
     right = np.empty(ng, dtype=np.bool_)
     no_ret = np.empty(ng, dtype=np.bool_)
     pp = np.empty((ng, 2))

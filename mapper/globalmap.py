@@ -607,10 +607,9 @@ class GlobalMap:
         ``hindsight_margin`` when ``verify``); a pair that passes (and verifies, when ``verify``)
         is accepted with reason ``hindsight``.
         """
-        hops = self.params.hindsight_hops
         p = self.params
         margin = min(p.hindsight_margin, p.crosscheck_margin) if p.verify else p.crosscheck_margin
-        near_n, near_m = self.topology.within(n, hops), self.topology.within(m, hops)
+        near_n, near_m = self.topology.within(n, p.hindsight_hops), self.topology.within(m, p.hindsight_hops)
         events: list[Event] = []
         for a, b in sorted(self._rejected):
             if a in self._closed or a not in near_n or b not in near_m:
@@ -623,8 +622,8 @@ class GlobalMap:
             if not _mutual(pa, ca, pb, cb, margin):
                 continue
             del self._rejected[(a, b)]
-            align = self._align(a, b) if (self.params.verify or self.params.realign) else None
-            if self.params.verify and not self._verified(align, a, b, margin=margin):
+            align = self._align(a, b) if (p.verify or p.realign) else None
+            if p.verify and not self._verified(align, a, b, margin=margin):
                 continue
             events += self._close(t, a, b, ca, cb, iou(pa, pb), "hindsight", align)
         return events
