@@ -59,13 +59,24 @@ def _pairs_within(
     on y and then by exact distance. The cost follows the candidates, not the product of the sizes
     of an ASR's boundary and label store.
     """
-    order = np.argsort(p[:, 0], kind="stable")
-    pu, cos_min = (_NO_DIRS, -1.0) if u is None else (np.ascontiguousarray(u[order], dtype=float), PARALLEL)
-    return _pairs_in_boxes(np.ascontiguousarray(p[order]), order, np.ascontiguousarray(seg, dtype=float), tol,
-                           pu, cos_min)
+    pu, cos_min = (_NO_DIRS, -1.0) if u is None else (u, PARALLEL)
+    return _pairs_sorted(np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(seg, dtype=float), tol,
+                         np.ascontiguousarray(pu, dtype=float), cos_min)
 
 
 _NO_DIRS = np.zeros((0, 2))
+
+
+@kernel
+def _pairs_sorted(
+    p: np.ndarray, seg: np.ndarray, tol: float, u: np.ndarray, cos_min: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_pairs_within` in one compiled call, callable from other kernels: the points ``p``
+    (P, 2) sorted by x (stably, as numpy's ``kind="stable"``), with their directions ``u`` (P, 2)
+    when ``cos_min`` > -1 (else ``u`` is not read), searched by :func:`_pairs_in_boxes`."""
+    order = np.argsort(p[:, 0], kind="mergesort")
+    pu = u[order] if cos_min > -1.0 else u
+    return _pairs_in_boxes(p[order], order, seg, tol, pu, cos_min)
 
 
 @kernel
@@ -112,21 +123,6 @@ def _grown(a: np.ndarray, size: int) -> np.ndarray:
     return out
 
 
-def _nearest_segment(p: np.ndarray, seg: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
-    """For each point (P, 2): its nearest segment of ``seg`` (S, 2, 2) closer than ``tol`` and the
-    distance (index 0 and distance inf where none is)."""
-    pi, si, d = _pairs_within(p, seg, tol)
-    e = np.zeros(len(p), dtype=int)
-    dist = np.full(len(p), np.inf)
-    if len(pi) == 0:
-        return e, dist
-    order = np.lexsort((si, d, pi))
-    first = np.append(True, np.diff(pi[order]) != 0)
-    k = order[first]
-    e[pi[k]], dist[pi[k]] = si[k], d[k]
-    return e, dist
-
-
 def _along_pairs(
     mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -160,12 +156,45 @@ def _covered(seg: np.ndarray, surfaces: np.ndarray, tol: float) -> np.ndarray:
     along it (``_SAMPLES``) lie along one of them (within ``tol``, m, and parallel)."""
     if len(seg) == 0 or len(surfaces) == 0:
         return np.zeros(len(seg), dtype=bool)
-    a, ab = seg[:, 0], seg[:, 1] - seg[:, 0]
-    s = ab / np.maximum(np.hypot(ab[:, 0], ab[:, 1]), 1e-12)[:, None]
-    samples = a[:, None, :] + _SAMPLES[None, :, None] * ab[:, None, :]
-    dirs = np.repeat(s, len(_SAMPLES), axis=0)
-    hits = _along(samples.reshape(-1, 2), dirs, surfaces, tol).reshape(len(seg), -1)
-    return hits.sum(axis=1) >= 3
+    return _covered_by(_as_segments(seg), _as_segments(surfaces), tol)
+
+
+def _as_segments(seg: np.ndarray) -> np.ndarray:
+    """Segments as the kernels take them: C-contiguous float64 (one compiled version each)."""
+    return np.ascontiguousarray(seg, dtype=float)
+
+
+@kernel
+def _unit_directions(seg: np.ndarray) -> np.ndarray:
+    """(N, 2) the unit direction of each segment (N, 2, 2) from its first end to its second (a
+    zero-length one: divided by 1e-12 instead of 0), as ``ab / np.maximum(np.hypot(*ab.T), 1e-12)``."""
+    u = np.empty((seg.shape[0], 2))
+    for i in range(seg.shape[0]):
+        abx, aby = seg[i, 1, 0] - seg[i, 0, 0], seg[i, 1, 1] - seg[i, 0, 1]
+        norm = max(np.hypot(abx, aby), 1e-12)
+        u[i, 0], u[i, 1] = abx / norm, aby / norm
+    return u
+
+
+@kernel
+def _covered_by(seg: np.ndarray, surfaces: np.ndarray, tol: float) -> np.ndarray:
+    """:func:`_covered` in one compiled call: the points ``a + f ab`` (f in ``_SAMPLES``) of each
+    segment, in that order, with the segment's direction, searched by :func:`_pairs_sorted`."""
+    n, k = seg.shape[0], _SAMPLES.shape[0]
+    u = _unit_directions(seg)
+    pts, dirs = np.empty((n * k, 2)), np.empty((n * k, 2))
+    for i in range(n):
+        abx, aby = seg[i, 1, 0] - seg[i, 0, 0], seg[i, 1, 1] - seg[i, 0, 1]
+        for j in range(k):
+            pts[i * k + j, 0] = seg[i, 0, 0] + _SAMPLES[j] * abx
+            pts[i * k + j, 1] = seg[i, 0, 1] + _SAMPLES[j] * aby
+            dirs[i * k + j, 0], dirs[i * k + j, 1] = u[i, 0], u[i, 1]
+    hit = np.zeros(n * k, dtype=np.bool_)
+    hit[_pairs_sorted(pts, surfaces, tol, dirs, PARALLEL)[0]] = True
+    out = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        out[i] = np.count_nonzero(hit[i * k : (i + 1) * k]) >= 3
+    return out
 
 
 def _add_new(stores: list[np.ndarray], segs: list[np.ndarray], tol: float) -> list[np.ndarray]:
@@ -173,45 +202,87 @@ def _add_new(stores: list[np.ndarray], segs: list[np.ndarray], tol: float) -> li
 
     A wall seen from every viewpoint would otherwise be stored once per view: a new segment is
     kept unless its two ends and its midpoint all lie along stored ones of its own store (within
-    ``tol``, parallel). One candidate search serves every store."""
-    pts, dirs, pg, ss, sg, test = [], [], [], [], [], []
-    for g, (store, seg) in enumerate(zip(stores, segs, strict=True)):
-        if len(store) == 0 or len(seg) == 0:
-            continue
-        u = seg[:, 1] - seg[:, 0]
-        u = u / np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-12)[:, None]
-        pts.append(np.concatenate([seg[:, 0], 0.5 * (seg[:, 0] + seg[:, 1]), seg[:, 1]]))
-        dirs.append(np.tile(u, (3, 1)))
-        pg.append(np.full(3 * len(seg), g))
-        ss.append(store)
-        sg.append(np.full(len(store), g))
-        test.append(g)
-    out = [np.concatenate([st, sg_]) if len(sg_) else st for st, sg_ in zip(stores, segs, strict=True)]
-    if not test:
-        return out
-    pi, si = _along_pairs(np.concatenate(pts), np.concatenate(dirs), np.concatenate(ss), tol)
-    own = np.concatenate(pg)[pi] == np.concatenate(sg)[si]
-    hit = np.zeros(sum(len(x) for x in pts), dtype=bool)
-    hit[pi[own]] = True
-    at = 0
-    for g in test:
-        n = len(segs[g])
-        covered = hit[at : at + 3 * n].reshape(3, -1).all(axis=0)
-        out[g] = np.concatenate([stores[g], segs[g][~covered]])
-        at += 3 * n
+    ``tol``, parallel; :func:`_along_store`)."""
+    out = []
+    for store, seg in zip(stores, segs, strict=True):
+        if len(store) and len(seg):
+            seg = seg[~_along_store(_as_segments(seg), _as_segments(store), tol)]
+        out.append(np.concatenate([store, seg]) if len(seg) else store)
     return out
 
 
-def _insert_rows(v: np.ndarray, at: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """``np.insert(v, at, rows, axis=0)`` for points ``v`` (N, 2) and indices ``at`` already in
-    ascending order: row i of ``rows`` lands before ``v[at[i]]``, equal indices in their order. The
-    same array, without np.insert's sorting and general-case bookkeeping."""
-    pos = at + np.arange(len(at))  # where the inserted rows end up
-    out = np.empty((len(v) + len(at), 2))
-    old = np.ones(len(out), dtype=bool)
-    old[pos] = False
-    out[pos] = rows
-    out[old] = v
+@kernel
+def _along_store(seg: np.ndarray, store: np.ndarray, tol: float) -> np.ndarray:
+    """(N,) True where a segment's (N, 2, 2) first end, midpoint and second end all lie along
+    segments of ``store`` (M, 2, 2) (within ``tol``, m, and parallel), in one compiled call."""
+    n = seg.shape[0]
+    u = _unit_directions(seg)
+    pts, dirs = np.empty((3 * n, 2)), np.empty((3 * n, 2))
+    for i in range(n):
+        for c in range(2):
+            pts[i, c] = seg[i, 0, c]
+            pts[n + i, c] = 0.5 * (seg[i, 0, c] + seg[i, 1, c])
+            pts[2 * n + i, c] = seg[i, 1, c]
+            dirs[i, c] = dirs[n + i, c] = dirs[2 * n + i, c] = u[i, c]
+    hit = np.zeros(3 * n, dtype=np.bool_)
+    hit[_pairs_sorted(pts, store, tol, dirs, PARALLEL)[0]] = True
+    return hit[:n] & hit[n : 2 * n] & hit[2 * n :]
+
+
+@kernel
+def _with_ends(v: np.ndarray, x: np.ndarray, tol: float, gap: float) -> np.ndarray:
+    """The ring ``v`` (V, 2, not closed; edge i from v[i] to v[i + 1]) with the points ``x`` (P, 2)
+    inserted as vertices where they lie on it: each point's nearest edge closer than ``tol`` (the
+    first of equals), the point's foot on it (its fraction t along it), when that foot lies more than
+    ``gap`` from both of the edge's ends; in ring order (by edge, then t), one vertex for feet
+    within ``gap`` of the one before. ``v`` itself when none is (m, one frame). Compiled."""
+    nv, m = v.shape[0], x.shape[0]
+    edges = np.empty((nv, 2, 2))
+    for i in range(nv):
+        j = i + 1 if i + 1 < nv else 0
+        edges[i, 0, 0], edges[i, 0, 1], edges[i, 1, 0], edges[i, 1, 1] = v[i, 0], v[i, 1], v[j, 0], v[j, 1]
+    pi, si, d = _pairs_sorted(x, edges, tol, np.zeros((0, 2)), -1.0)
+    e, dist = np.zeros(m, dtype=np.int64), np.full(m, np.inf)
+    for k in range(len(pi)):  # each point's nearest edge, the first of equals
+        i = pi[k]
+        if d[k] < dist[i] or (d[k] == dist[i] and si[k] < e[i]):
+            e[i], dist[i] = si[k], d[k]
+    sel_e, sel_t = np.empty(m, dtype=np.int64), np.empty(m)
+    n = 0
+    for i in range(m):
+        ax, ay = edges[e[i], 0, 0], edges[e[i], 0, 1]
+        abx, aby = edges[e[i], 1, 0] - ax, edges[e[i], 1, 1] - ay
+        length = np.hypot(abx, aby)
+        t = min(max(((x[i, 0] - ax) * abx + (x[i, 1] - ay) * aby) / max(length * length, 1e-18), 0.0), 1.0)
+        along = t * length  # distance from the edge's start (m)
+        if dist[i] < tol and along > gap and length - along > gap:
+            # insertion sort by (edge, t), stable: ring order, equal keys in the points' order
+            at = n
+            while at > 0 and (sel_e[at - 1] > e[i] or (sel_e[at - 1] == e[i] and sel_t[at - 1] > t)):
+                sel_e[at], sel_t[at] = sel_e[at - 1], sel_t[at - 1]
+                at -= 1
+            sel_e[at], sel_t[at] = e[i], t
+            n += 1
+    if n == 0:
+        return v
+    new = np.empty((n, 2))
+    for k in range(n):
+        a, b = edges[sel_e[k], 0], edges[sel_e[k], 1]
+        new[k, 0], new[k, 1] = a[0] + sel_t[k] * (b[0] - a[0]), a[1] + sel_t[k] * (b[1] - a[1])
+    keep = np.ones(n, dtype=np.bool_)  # one vertex for coinciding insertions (abutting exits' ends)
+    for k in range(1, n):
+        keep[k] = np.hypot(new[k, 0] - new[k - 1, 0], new[k, 1] - new[k - 1, 1]) > gap
+    out = np.empty((nv + np.count_nonzero(keep), 2))
+    o, k = 0, 0
+    for j in range(nv + 1):  # the kept points of edge j - 1 go before v[j]
+        while k < n and sel_e[k] + 1 == j:
+            if keep[k]:
+                out[o, 0], out[o, 1] = new[k, 0], new[k, 1]
+                o += 1
+            k += 1
+        if j < nv:
+            out[o, 0], out[o, 1] = v[j, 0], v[j, 1]
+            o += 1
     return out
 
 
@@ -442,25 +513,10 @@ class AsrBuilder:
             v = v[::-1]
         if len(self.exit_segments) == 0:
             return v
-        tol = self.p.simplify_tolerance
-        x = self.exit_segments.reshape(-1, 2)
-        edges = np.stack([v, np.concatenate([v[1:], v[:1]])], axis=1)
-        e, dist = _nearest_segment(x, edges, self.p.label_tolerance)
-        a = edges[e, 0]
-        ab = edges[e, 1] - a
-        length = np.hypot(ab[:, 0], ab[:, 1])
-        t = np.clip(np.einsum("ij,ij->i", x - a, ab) / np.maximum(length * length, 1e-18), 0.0, 1.0)
-        along = t * length  # distance from the edge's start (m)
-        ok = (dist < self.p.label_tolerance) & (along > tol) & (length - along > tol)
-        if not ok.any():
+        x = np.ascontiguousarray(self.exit_segments.reshape(-1, 2), dtype=float)
+        out = _with_ends(np.ascontiguousarray(v), x, self.p.label_tolerance, self.p.simplify_tolerance)
+        if len(out) == len(v):
             return v
-        e, tt = e[ok], t[ok]
-        order = np.lexsort((tt, e))
-        e, tt = e[order], tt[order]
-        new = edges[e, 0] + tt[:, None] * (edges[e, 1] - edges[e, 0])
-        # one vertex for coinciding insertions (the two ends of abutting exits)
-        keep = np.append(True, np.hypot(*np.diff(new, axis=0).T) > tol)
-        out = _insert_rows(v, e[keep] + 1, new[keep])
         # A vertex of the ring can lie within rounding of another of its edges (a pinch the union
         # left, valid by 1e-15 m); points inserted on that edge are rounded too and can cross it.
         # Then the ring stays as it was: its exits' edges are found by their labels alone.
