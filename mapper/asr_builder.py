@@ -286,6 +286,85 @@ def _with_ends(v: np.ndarray, x: np.ndarray, tol: float, gap: float) -> np.ndarr
     return out
 
 
+_UNKNOWN, _SURFACE, _EXIT = 0, 1, 2  # edge label codes of the kernels
+_LABELS = np.array(["unknown", "surface", "exit"], dtype=object)  # code -> label
+
+
+@kernel
+def _edge_labels(v: np.ndarray, store: np.ndarray, ne: int, tol: float) -> np.ndarray:
+    """(V,) the label code of each edge of the ring ``v`` (V, 2; edge i from v[i] to v[i + 1]):
+    ``_EXIT`` where it lies along (its midpoint within ``tol``, m, and parallel) one of the first
+    ``ne`` segments of ``store`` (the exit segments), else ``_SURFACE`` where along one of the
+    others (surfaces), else ``_UNKNOWN``. Compiled (:mod:`mapper.jit`)."""
+    nv = v.shape[0]
+    mid, u = np.empty((nv, 2)), np.empty((nv, 2))
+    for i in range(nv):
+        j = i + 1 if i + 1 < nv else 0
+        dx, dy = v[j, 0] - v[i, 0], v[j, 1] - v[i, 1]
+        mid[i, 0], mid[i, 1] = 0.5 * (v[i, 0] + v[j, 0]), 0.5 * (v[i, 1] + v[j, 1])
+        norm = max(np.hypot(dx, dy), 1e-12)
+        u[i, 0], u[i, 1] = dx / norm, dy / norm
+    codes = np.full(nv, _UNKNOWN, dtype=np.int64)
+    if store.shape[0] == 0:
+        return codes
+    ei, si, _ = _pairs_sorted(mid, store, tol, u, PARALLEL)
+    for k in range(len(ei)):  # an edge along both is an exit
+        codes[ei[k]] = max(codes[ei[k]], _EXIT if si[k] < ne else _SURFACE)
+    return codes
+
+
+@kernel
+def _runs(v: np.ndarray, codes: np.ndarray, code: int, narrow: int, width: float
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """The maximal runs of edges labelled ``code`` round the ring ``v`` (V, 2) at least ``width``
+    (m) from end to end: the indices into ``v`` of each run's first and last vertex, in ring order
+    from the first edge not in a run. The edges of narrower runs are relabelled ``narrow`` in
+    ``codes``. None when every edge or none is ``code`` (empty arrays). Compiled (:mod:`mapper.jit`)."""
+    n = codes.shape[0]
+    shift = -1
+    for j in range(n):
+        if codes[j] != code:
+            shift = j
+            break
+    ia, ib = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    if shift < 0:
+        return ia[:0], ib[:0]
+    k, start = 0, -1
+    for j in range(n + 1):  # start at shift, so that no run wraps round it
+        cur = j < n and codes[(j + shift) % n] == code
+        if cur and start < 0:
+            start = j
+        elif not cur and start >= 0:
+            a, b = (start + shift) % n, (j + shift) % n
+            if np.hypot(v[b, 0] - v[a, 0], v[b, 1] - v[a, 1]) >= width:
+                ia[k], ib[k] = a, b
+                k += 1
+            else:
+                for r in range(start, j):
+                    codes[(r + shift) % n] = narrow
+            start = -1
+    return ia[:k], ib[:k]
+
+
+@kernel
+def _nearest_old(ab: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """For each new exit (segments ``ab`` (R, 2, 2), in order) the old exit (midpoints ``old``
+    (O, 2)) whose midpoint is nearest its own, within half its width and at least 0.5 m, not yet
+    taken by an earlier one (the first of equals); -1 where none is (m, one frame). Compiled."""
+    taken = np.zeros(old.shape[0], dtype=np.bool_)
+    out = np.full(ab.shape[0], -1, dtype=np.int64)
+    for r in range(ab.shape[0]):
+        mx, my = 0.5 * (ab[r, 0, 0] + ab[r, 1, 0]), 0.5 * (ab[r, 0, 1] + ab[r, 1, 1])
+        best_d = max(0.5, 0.5 * np.hypot(ab[r, 1, 0] - ab[r, 0, 0], ab[r, 1, 1] - ab[r, 0, 1]))
+        for i in range(old.shape[0]):
+            d = np.hypot(old[i, 0] - mx, old[i, 1] - my)
+            if not taken[i] and d < best_d:
+                out[r], best_d = i, d
+        if out[r] >= 0:
+            taken[out[r]] = True
+    return out
+
+
 def _transform_segments(pose: Pose, seg: np.ndarray) -> np.ndarray:
     return transform_points(pose, seg.reshape(-1, 2)).reshape(-1, 2, 2)
 
@@ -543,51 +622,22 @@ class AsrBuilder:
                 dropped &= ~self._passed(self.exit_segments)
                 self.exit_segments = self.exit_segments[~dropped]
         v = self._ring()
-        nxt = np.concatenate([v[1:], v[:1]])
-        mid = 0.5 * (v + nxt)
-        d = nxt - v
-        u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
         # one candidate search over both stores: exit segments first, then surfaces
-        ne = len(self.exit_segments)
-        labels = np.full(len(v), "unknown", dtype=object)
-        if len(self.surfaces) or ne:
-            store = np.concatenate([self.exit_segments, self.surfaces])
-            ei, si = _along_pairs(mid, u, store, p.label_tolerance)
-            labels[ei[si >= ne]] = "surface"
-            labels[ei[si < ne]] = "exit"  # an edge along both is an exit
-        exits = self._exit_runs(v, labels)
+        store = _as_segments(np.concatenate([self.exit_segments, self.surfaces]))
+        codes = _edge_labels(np.ascontiguousarray(v, dtype=float), store, len(self.exit_segments),
+                             p.label_tolerance)
+        exits = self._exit_runs(v, codes)
         self._prune()
         a = self.asr
-        a.boundary, a.edges = v, labels.tolist()
+        a.boundary, a.edges = v, _LABELS[codes].tolist()
         a.centre, a.centre_rule = centre_of(self.polygon)
         a.exits = self._keep_ids(exits)
 
-    def _exit_runs(self, v: np.ndarray, labels: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Maximal runs of exit edges as (a, b) segments (ASR frame, m); too-narrow runs are
-        relabelled unknown. The runs are found in one pass over the labels (a few hundred edges:
-        a Python loop is cheaper than the dozen numpy calls it replaces)."""
-        n = len(labels)
-        ex = [lab == "exit" for lab in labels.tolist()]
-        if not any(ex) or all(ex):
-            return []
-        shift = ex.index(False)  # start the pass there, so that no run wraps around it
-        first, stop = [], []  # each run's first edge and one past its last, counted from shift
-        prev = False
-        for j in range(n):
-            cur = ex[(j + shift) % n]
-            if cur != prev:
-                (first if cur else stop).append(j)
-                prev = cur
-        if prev:
-            stop.append(n)
-        f, e = np.array(first), np.array(stop)
-        a = v[(f + shift) % n]
-        b = v[(e + shift) % n]
-        wide = np.hypot(*(b - a).T) >= self.p.passage_width
-        for r in np.flatnonzero(~wide).tolist():
-            for j in range(first[r], stop[r]):
-                labels[(j + shift) % n] = "unknown"
-        return list(zip(a[wide], b[wide], strict=True))
+    def _exit_runs(self, v: np.ndarray, codes: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Maximal runs of exit edges (``codes``, :func:`_edge_labels`) as (a, b) segments (ASR
+        frame, m); too-narrow runs are relabelled unknown in ``codes`` (:func:`_runs`)."""
+        ia, ib = _runs(v, codes, _EXIT, _UNKNOWN, self.p.passage_width)
+        return list(zip(v[ia], v[ib], strict=True))
 
     def _prune(self) -> None:
         """Drop stored segments that lie inside the polygon: they can never be boundary again.
@@ -612,21 +662,18 @@ class AsrBuilder:
         self._pruned_size = max(len(self.surfaces) + len(self.exit_segments), 16)
 
     def _keep_ids(self, runs: list[tuple[np.ndarray, np.ndarray]]) -> list[Exit]:
+        """The exits of the exit ``runs`` (ASR frame, m): each keeps the id of the old exit whose
+        midpoint is nearest its own, within half its width and at least 0.5 m (:func:`_nearest_old`),
+        or gets a new id."""
         old = list(self.asr.exits)
         out = []
         if runs and old:
-            mids = 0.5 * (np.array([a for a, _ in runs]) + np.array([b for _, b in runs]))  # (R, 2)
-            diff = np.array([e.midpoint for e in old])[None, :, :] - mids[:, None, :]
-            dist = np.hypot(diff[..., 0], diff[..., 1]).tolist()  # (R, O): run midpoint to old exit's
-        taken = [False] * len(old)
-        for r, (a, b) in enumerate(runs):
-            width = float(np.hypot(*(b - a)))
-            best, best_d = None, max(0.5, 0.5 * width)
-            for i in range(len(old)):  # the nearest not yet taken, the first of equals
-                if not taken[i] and dist[r][i] < best_d:
-                    best, best_d = i, dist[r][i]
-            if best is not None:
-                taken[best] = True
+            ab = np.array(runs)  # (R, 2, 2)
+            kept = _nearest_old(ab, np.array([e.midpoint for e in old])).tolist()
+        else:
+            kept = [-1] * len(runs)
+        for (a, b), best in zip(runs, kept, strict=True):
+            if best >= 0:
                 e = old[best]
                 out.append(Exit(e.id, (float(a[0]), float(a[1])), (float(b[0]), float(b[1])), e.to))
             else:
