@@ -573,13 +573,16 @@ class AsrBuilder:
         """Valid, one ring, simplified, no holes: the part holding the ASR's origin (the first
         viewpoint, so earlier viewpoints are never cut off), or the robot for the first view."""
         g = g if g.is_valid else shapely.make_valid(g)
-        parts = [q for q in shapely.get_parts(g) if isinstance(q, shapely.Polygon) and q.area > 0]
-        if not parts:
-            return self.polygon
-        anchor = shapely.Point(0.0, 0.0) if self.polygon.area > 0 else robot
-        holding = [q for q in parts if q.covers(anchor)]
-        poly = max(holding or parts, key=lambda q: q.area)
-        poly = shapely.Polygon(poly.exterior)
+        if isinstance(g, shapely.Polygon) and g.area > 0 and shapely.get_num_interior_rings(g) == 0:
+            poly = g  # the usual case: already one ring (the same coordinates as its exterior's polygon)
+        else:
+            parts = [q for q in shapely.get_parts(g) if isinstance(q, shapely.Polygon) and q.area > 0]
+            if not parts:
+                return self.polygon
+            anchor = shapely.Point(0.0, 0.0) if self.polygon.area > 0 else robot
+            holding = [q for q in parts if q.covers(anchor)]
+            poly = max(holding or parts, key=lambda q: q.area)
+            poly = shapely.Polygon(poly.exterior)
         simple = poly.simplify(self.p.simplify_tolerance, preserve_topology=True)
         return valid_polygon(np.asarray(simple.exterior.coords)[:-1]) if not simple.is_valid else simple
 
