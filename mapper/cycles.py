@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
+from mapper.jit import kernel
 from mapper.nearest import point_tree
 from mapper.se2 import Pose, compose, transform_points, wrap
 from mapper.types import ASR
@@ -254,6 +255,31 @@ def free_space_violation(points: np.ndarray, polygon: shapely.Geometry, margin: 
     return float(np.mean(shapely.contains_xy(inner, points[:, 0], points[:, 1])))
 
 
+@kernel
+def first_facing(
+    d: np.ndarray, j: np.ndarray, q_normals: np.ndarray, p_normals: np.ndarray, c: float, s: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """For each point of P, of its k nearest points of Q (a kd-tree's answer: distances ``d``
+    (N, k), m, inf past the gate; indices ``j`` (N, k), len(Q) past the gate) the first within the
+    gate whose unit normal (``q_normals`` (M, 2)) faces within 60° of the point's own
+    (``p_normals`` (N, 2) turned by the angle whose cosine and sine are ``c``, ``s``): whether there
+    is one, and its index (the nearest's, clipped to Q, where there is none). One frame. Compiled
+    (:mod:`mapper.jit`): it replaces the dozen numpy calls of each step of :func:`align_points`."""
+    n, k = j.shape
+    last = q_normals.shape[0] - 1
+    ok, out = np.zeros(n, dtype=np.bool_), np.empty(n, dtype=np.int64)
+    for i in range(n):
+        fx = c * p_normals[i, 0] - s * p_normals[i, 1]  # P's normal, turned with P
+        fy = s * p_normals[i, 0] + c * p_normals[i, 1]
+        out[i] = min(j[i, 0], last)
+        for m in range(k):
+            jm = min(j[i, m], last)
+            if d[i, m] < np.inf and q_normals[jm, 0] * fx + q_normals[jm, 1] * fy > 0.5:
+                ok[i], out[i] = True, jm
+                break
+    return ok, out
+
+
 def align_points(
     p: np.ndarray,
     q: np.ndarray,
@@ -279,7 +305,9 @@ def align_points(
         return None
     tree = point_tree(q)
     k = min(4, len(q))
-    rows = np.arange(len(p))
+    q_normals = np.ascontiguousarray(q_normals, dtype=float)
+    if p_normals is not None:
+        p_normals = np.ascontiguousarray(p_normals, dtype=float)
     ramp = max(2, (2 * iterations) // 3)
     gates = np.geomspace(start_distance, inlier_distance, ramp).tolist()
     gates += [inlier_distance] * (iterations - ramp)
@@ -291,14 +319,7 @@ def align_points(
             d, j = tree.query(pts, distance_upper_bound=gate)
             return d < np.inf, np.minimum(j, len(q) - 1)
         d, j = tree.query(pts, k=k, distance_upper_bound=gate)
-        j = np.minimum(j, len(q) - 1)
-        c, s = math.cos(rot), math.sin(rot)
-        fx = c * p_normals[:, 0] - s * p_normals[:, 1]  # P's normals, rotated with P
-        fy = s * p_normals[:, 0] + c * p_normals[:, 1]
-        qn = q_normals[j]  # (N, k, 2)
-        ok = (d < np.inf) & (qn[..., 0] * fx[:, None] + qn[..., 1] * fy[:, None] > 0.5)
-        first = np.argmax(ok, axis=1)
-        return ok[rows, first], j[rows, first]
+        return first_facing(d, j.astype(np.int64), q_normals, p_normals, math.cos(rot), math.sin(rot))
 
     tx = ty = th = 0.0  # the estimate so far: P moved by (tx, ty, th) is ``cur``
     cur = p
