@@ -127,6 +127,22 @@ class CycleParams:
     after alignment. Two views of one place never see a wall where the other saw through; two
     similar but different places (or a wrong alignment) do."""
 
+    verify_crosschecked_violation: float = 0.2
+    """The largest free-space violation (as ``verify_max_violation``) of a candidate whose unaligned
+    centre crosscheck passed with the full ``crosscheck_margin`` (each centre that deep inside the
+    other ASR by dead reckoning alone: the paper's evidence of one place) and whose alignment has
+    at least ``verify_near_min_inliers`` of its surface points agreeing and is fixed in every
+    direction (``verify_constrained``). A cluttered room seen from two viewpoints (tables, chair
+    legs the simplified polygons cut across) leaves 5-19 % of points in the other's free space:
+    traced in stepped ``lab`` (seeds 5, 13, 20) every such refusal was a true revisit of the lab
+    room, centres 2-3.3 m inside each other, 50-67 % inliers at 2-4 cm RMS, constraint 0.13-0.49.
+    The conditions keep the check where it is the evidence: CSAIL corrected's two false matches
+    that only the violation refuses (6 % and 10 %) have 41-43 % inliers at 8-11 cm, and a straight
+    corridor piece (its alignment open along the corridor, placed by the drift bound or the
+    topology) slid onto its neighbour sees the corridor's end or a door jamb in the other's free
+    space (stepped ``lab`` seed 18, 20 onto 4: 27 % refused, then 20 % accepted, false).
+    ``verify_max_violation`` or less: as strict as the rest."""
+
     verify_min_constraint: float = 0.15
     """Smallest eigenvalue (0..0.5) of the matched surfaces' normal scatter, required of a candidate
     found only by ``search_radius`` (its alignment is the only evidence). Along a straight corridor

@@ -481,12 +481,19 @@ class GlobalMap:
         """The alignment is good, and with it applied to n the centre crosscheck still passes: by
         ``verify_crosscheck_margin`` after an unaligned crosscheck passed, by ``crosscheck_margin``
         for a ``near`` candidate (its aligned crosscheck is the only one), by ``margin`` (m) when
-        given (hindsight: ``hindsight_margin``)."""
+        given (hindsight: ``hindsight_margin``). The free-space violation allowed is
+        ``verify_crosschecked_violation`` after an unaligned crosscheck passed in full with half the
+        surfaces agreeing (``verify_near_min_inliers``) and fixing the alignment in every direction
+        (``verify_constrained``), else ``verify_max_violation``."""
         p = self.params
         if a is None:
             return False
+        crosschecked = margin is None and not near  # the unaligned crosscheck passed in full
         if margin is None:
             margin = p.crosscheck_margin if near else min(p.crosscheck_margin, p.verify_crosscheck_margin)
+        violation = p.verify_max_violation
+        if crosschecked and a.inliers >= p.verify_near_min_inliers and a.constraint >= p.verify_constrained:
+            violation = max(violation, p.verify_crosschecked_violation)
         moved = compose(a.correction, self.asrs[n].origin)
         poly_n, c_n = global_polygon(self.asrs[n], moved), global_centre(self.asrs[n], moved)
         poly_m, c_m = global_polygon(self.asrs[m]), global_centre(self.asrs[m])
@@ -496,7 +503,7 @@ class GlobalMap:
             and a.inliers >= p.verify_min_inliers
             and a.shift <= p.verify_max_correction
             and abs(a.correction[2]) <= p.verify_max_rotation
-            and a.violation <= p.verify_max_violation
+            and a.violation <= violation
             and (a.constraint >= p.verify_constrained or a.pinned is not None
                  or (not near and (self._anchored(n, m)
                                    or self._drift_bounded(a, n, m, (poly_n, c_n), (poly_m, c_m)))))

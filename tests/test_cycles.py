@@ -430,6 +430,33 @@ def test_a_verified_alignment_needs_the_centres_only_verify_crosscheck_margin_de
     assert gm._verified(good, 2, 1, near=True) is False
 
 
+def test_a_crosschecked_revisit_of_a_cluttered_room_may_see_clutter_in_the_others_free_space():
+    # One room, twice: each centre lies 1 m inside the other by dead reckoning (the unaligned
+    # crosscheck passed). The alignment is good but 10 % of the surface points (chair legs, table
+    # edges one view saw and the other's simplified polygon cuts across) lie in the other's free
+    # space: allowed after the crosscheck with half the surfaces agreeing, not otherwise.
+    gm = GlobalMap(FULL)
+    gm.asrs[1] = box_asr(1, (0, 0, 6, 5), (0.0, 0.0, 0.0), "E")
+    gm.asrs[2] = box_asr(2, (1, 0, 7, 5), (0.0, 0.0, 0.0), "W")
+    cluttered = Alignment(correction=(0.0, 0.0, 0.0), rms=0.03, inliers=0.6, shift=0.0, constraint=0.3,
+                          violation=0.1)
+    assert gm._verified(cluttered, 2, 1) is True
+    assert gm._verified(dataclasses.replace(cluttered, violation=0.25), 2, 1) is False
+    # A poor fit (CSAIL corrected's false matches: 41-43 % inliers) keeps the strict limit, ...
+    assert gm._verified(dataclasses.replace(cluttered, inliers=0.45), 2, 1) is False
+    assert gm._verified(dataclasses.replace(cluttered, inliers=0.45, violation=0.04), 2, 1) is True
+    # ... as does an alignment its surfaces leave open along one axis (a corridor piece that may
+    # have slid onto its neighbour, seeing its end in the other's free space), placed by its exits ...
+    corridor = dataclasses.replace(cluttered, constraint=0.0, pinned=0.1)
+    assert gm._verified(dataclasses.replace(corridor, violation=0.04), 2, 1) is True
+    assert gm._verified(corridor, 2, 1) is False
+    # ... as does a candidate with no unaligned crosscheck behind it, and one re-examined in hindsight.
+    assert gm._verified(cluttered, 2, 1, near=True) is False
+    assert gm._verified(cluttered, 2, 1, margin=0.1) is False
+    gm.params = FULL.replace(verify_crosschecked_violation=FULL.verify_max_violation)
+    assert gm._verified(cluttered, 2, 1) is False
+
+
 def _room_and_next():
     """ASR 1, a 4 m x 3 m room with an exit on its east side; ASR 2 beyond it, entered through it."""
     gm = GlobalMap(FULL)
