@@ -624,11 +624,10 @@ class AsrBuilder:
             if dropped.any():
                 dropped &= ~self._passed(self.exit_segments)
                 self.exit_segments = self.exit_segments[~dropped]
-        v = self._ring()
+        v = np.ascontiguousarray(self._ring(), dtype=float)  # one layout: one compiled version
         # one candidate search over both stores: exit segments first, then surfaces
         store = _as_segments(np.concatenate([self.exit_segments, self.surfaces]))
-        codes = _edge_labels(np.ascontiguousarray(v, dtype=float), store, len(self.exit_segments),
-                             p.label_tolerance)
+        codes = _edge_labels(v, store, len(self.exit_segments), p.label_tolerance)
         exits = self._exit_runs(v, codes)
         self._prune()
         a = self.asr

@@ -61,6 +61,7 @@ def warm_up(params: MapperParams | None = None) -> None:
             m.add_scan(Scan(t, r, -math.pi / 2, math.pi / (beams - 1), max_range))
         m.flush()
     _align_walls()
+    _lying_along_walls()
 
 
 def _align_walls() -> None:
@@ -74,3 +75,12 @@ def _align_walls() -> None:
     d = (b - a) / np.hypot(*(b - a).T)[:, None]
     normals = np.repeat(np.stack([-d[:, 1], d[:, 0]], axis=1), len(f), axis=0)
     align_points(pts, pts, normals, 0.1, p_normals=normals)
+
+
+def _lying_along_walls() -> None:
+    """:func:`mapper.asr_builder._lying_along` of the room's walls against themselves: the search
+    for passed exits and dropped exit segments, which the synthetic room's views never need (its
+    doorway is not crossed) and a real run does within its first minutes (Intel raw)."""
+    from mapper.asr_builder import _lying_along
+
+    _lying_along(_WALLS, _WALLS, 0.1)

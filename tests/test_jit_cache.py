@@ -57,3 +57,26 @@ def test_only_old_asrmap_caches_are_removed_from_a_shared_cache_directory(tmp_pa
         os.utime(d, (week_ago, week_ago))
     assert prune_caches(keep) == [old]
     assert keep.is_dir() and recent.is_dir() and foreign.is_dir() and not old.exists()
+
+
+def test_the_warm_up_compiles_every_kernel_a_real_log_needs(shared_data):
+    # A kernel first called (or called with other array types) in a real run compiles there: about
+    # a second in the live service's first scans, on a machine without the cache. Replayed after
+    # the warm-up, Intel raw asks no kernel for a version the warm-up did not make.
+    import importlib
+    import pkgutil
+
+    from numba.core.registry import CPUDispatcher
+
+    from mapper.warmup import warm_up
+    from service.replay import replay
+
+    modules = [importlib.import_module(f"mapper.{m.name}") for m in pkgutil.iter_modules(mapper.__path__)]
+    kernels = {f"{m.__name__}.{k}": v for m in modules for k, v in vars(m).items()
+               if isinstance(v, CPUDispatcher)}
+    assert len(kernels) > 20
+    warm_up()
+    before = {k: set(v.signatures) for k, v in kernels.items()}
+    replay(shared_data / "intel-raw-first5505.clf.gz")
+    late = {k: new for k, v in kernels.items() if (new := set(v.signatures) - before[k])}
+    assert late == {}
