@@ -47,33 +47,20 @@ from mapper.view import View, valid_polygon
 _SAMPLES = np.linspace(0.1, 0.9, 5)  # fractions along an exit tested for being covered by surfaces
 
 
-def _pairs_within(
-    p: np.ndarray, seg: np.ndarray, tol: float, u: np.ndarray | None = None
-) -> tuple[np.ndarray, ...]:
-    """The (point, segment) pairs closer than ``tol`` (m): point and segment indices and distances
-    (in no particular order). With the points' unit directions ``u`` (P, 2), only the pairs whose
-    direction is parallel to the segment's to within 20° (:data:`mapper.cycles.PARALLEL`).
-
-    Candidates are the points inside each segment's bounding box grown by ``tol``: the points sorted
-    by x, each box's x-range is two binary searches, and only the pairs in those ranges are tested
-    on y and then by exact distance. The cost follows the candidates, not the product of the sizes
-    of an ASR's boundary and label store.
-    """
-    pu, cos_min = (_NO_DIRS, -1.0) if u is None else (u, PARALLEL)
-    return _pairs_sorted(np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(seg, dtype=float), tol,
-                         np.ascontiguousarray(pu, dtype=float), cos_min)
-
-
-_NO_DIRS = np.zeros((0, 2))
-
-
 @kernel
 def _pairs_sorted(
     p: np.ndarray, seg: np.ndarray, tol: float, u: np.ndarray, cos_min: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_pairs_within` in one compiled call, callable from other kernels: the points ``p``
-    (P, 2) sorted by x (stably, as numpy's ``kind="stable"``), with their directions ``u`` (P, 2)
-    when ``cos_min`` > -1 (else ``u`` is not read), searched by :func:`_pairs_in_boxes`."""
+    """The (point, segment) pairs closer than ``tol`` (m): point and segment indices and distances
+    (in no particular order). With ``cos_min`` > -1, only the pairs whose point direction ``u``
+    (P, 2, unit vectors) is parallel to the segment's to within that cosine (:data:`PARALLEL`:
+    20°); else ``u`` is not read.
+
+    Candidates are the points inside each segment's bounding box grown by ``tol``: the points sorted
+    by x (stably), each box's x-range is two binary searches, and only the pairs in those ranges are
+    tested on y and then by exact distance (:func:`_pairs_in_boxes`). The cost follows the
+    candidates, not the product of the sizes of an ASR's boundary and label store. Compiled,
+    callable from other kernels."""
     order = np.argsort(p[:, 0], kind="mergesort")
     pu = u[order] if cos_min > -1.0 else u
     return _pairs_in_boxes(p[order], order, seg, tol, pu, cos_min)
@@ -83,7 +70,7 @@ def _pairs_sorted(
 def _pairs_in_boxes(
     ps: np.ndarray, order: np.ndarray, seg: np.ndarray, tol: float, pu: np.ndarray, cos_min: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_pairs_within` over the points ``ps`` sorted by x (``order``: their indices before
+    """:func:`_pairs_sorted` over the points ``ps`` sorted by x (``order``: their indices before
     sorting; ``pu``: their directions, when ``cos_min`` > -1), segment by segment. Compiled
     (:mod:`mapper.jit`)."""
     xs = ps[:, 0]
@@ -123,32 +110,16 @@ def _grown(a: np.ndarray, size: int) -> np.ndarray:
     return out
 
 
-def _along_pairs(
-    mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """The (edge, segment) index pairs where an edge (midpoint, unit direction) lies along a segment:
-    within ``tol`` (m) and parallel to within 20°."""
-    pi, si, _ = _pairs_within(mid, seg, tol, u)
-    return pi, si
-
-
-def _along(mid: np.ndarray, u: np.ndarray, seg: np.ndarray, tol: float) -> np.ndarray:
-    """(E,) True where an edge (midpoint, unit direction) lies along one of the segments."""
-    out = np.zeros(len(mid), dtype=bool)
-    if len(seg) == 0 or len(mid) == 0:
-        return out
-    out[_along_pairs(mid, u, seg, tol)[0]] = True
-    return out
-
-
 def _lying_along(seg: np.ndarray, others: np.ndarray, tol: float) -> np.ndarray:
     """(N,) True where a segment (N, 2, 2) lies along one of ``others`` (M, 2, 2): its midpoint
     within ``tol`` (m) of one, and parallel to it."""
+    out = np.zeros(len(seg), dtype=bool)
     if len(seg) == 0 or len(others) == 0:
-        return np.zeros(len(seg), dtype=bool)
-    d = seg[:, 1] - seg[:, 0]
-    u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
-    return _along(0.5 * (seg[:, 0] + seg[:, 1]), u, others, tol)
+        return out
+    seg = _as_segments(seg)
+    mid = 0.5 * (seg[:, 0] + seg[:, 1])
+    out[_pairs_sorted(mid, _as_segments(others), tol, _unit_directions(seg), PARALLEL)[0]] = True
+    return out
 
 
 def _covered(seg: np.ndarray, surfaces: np.ndarray, tol: float) -> np.ndarray:
