@@ -5,8 +5,10 @@ for all of them the first time on a machine, about 0.3 s once cached. Paid insid
 is a stall of the live service (its watchdog is 10 s) or a skewed replay throughput.
 :func:`warm_up` pays it up front by mapping a short synthetic run: a rectangular room with a
 doorway, seen from a robot that turns in place and drives, so that every stage and kernel runs
-with the array types real scans give it; and the cycle check's surface alignment, which that run
-never reaches (it revisits nothing), of the room's walls with themselves.
+with the array types real scans give it; and two searches that run never reaches, on the room's
+walls: the cycle check's surface alignment (it revisits nothing) and the search for exits passed
+and dropped (it crosses no doorway). ``tests/test_jit_cache.py`` replays Intel raw after it and
+fails if any kernel compiles then.
 """
 
 from __future__ import annotations
