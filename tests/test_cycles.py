@@ -164,6 +164,26 @@ def test_a_shallow_revisit_beside_an_accepted_one_is_closed_in_hindsight_with_th
         assert gm.asrs[6].duplicate_of is None
 
 
+@pytest.mark.parametrize("hops", [1, 2])
+def test_a_rejected_revisit_two_links_from_the_next_match_is_closed_in_hindsight_with_two_hops(hops):
+    # As above, but between the room piece 6 and the corridor piece that matches 2 lies a doorway
+    # piece too small to be checked (7, 0.8 m²): the match 8 -> 2 is two links from 6. With
+    # hindsight_hops 2 (the default) hindsight re-examines (6, 1) and closes it; with the paper's
+    # one hop it stays rejected.
+    route = [*HINDSIGHT[:6], ((4, 1.5, 4.8, 2.5), (4.1, 2.0, 0.0), "WE"),
+             ((4.8, 1, 10, 3), (4.9, 2.0, 0.0), "W")]
+    gm = GlobalMap(FULL.replace(align_failed_crosscheck=False, hindsight_hops=hops))
+    events = drive(gm, route, per_step=WEST)
+    assert (6, 1, "centre-crosscheck") in [(e.asr, e.matches, e.reason) for e in events
+                                           if isinstance(e, CycleRejected)]
+    if hops == 2:
+        assert accepted(events) == [(8, 2, "centre-crosscheck"), (6, 1, "hindsight")]
+        assert gm.asrs[6].duplicate_of == 1
+    else:
+        assert accepted(events) == [(8, 2, "centre-crosscheck")]
+        assert gm.asrs[6].duplicate_of is None
+
+
 def test_a_revisit_whose_crosscheck_drift_fails_is_accepted_once_aligned_by_its_surfaces():
     gm = GlobalMap(FULL)
     events = drive(gm, HINDSIGHT, per_step=WEST)
