@@ -86,8 +86,9 @@ class CycleParams:
     whose surfaces say where they are. Off: every such candidate is rejected, as in the paper."""
 
     hindsight: bool = True
-    """§7: when ASR k matches j, accept earlier crosscheck-rejected pairs (a, b) where a is a
-    topological neighbour of k and b of j (the paper's ASR6/ASR7 case, in hindsight)."""
+    """§7: when ASR k matches j, accept earlier rejected pairs (a, b) (by the crosscheck, or by
+    verification) where a lies within ``hindsight_hops`` links of k and b of j (the paper's
+    ASR6/ASR7 case, in hindsight)."""
 
     hindsight_hops: int = 2
     """How many topological hops counts as "neighbour" for hindsight acceptance: a rejected pair

@@ -17,6 +17,8 @@ import math
 
 import numpy as np
 
+from mapper.asr_builder import _lying_along
+from mapper.cycles import align_points
 from mapper.params import MapperParams
 from mapper.types import Odometry, Scan
 
@@ -69,8 +71,6 @@ def warm_up(params: MapperParams | None = None) -> None:
 def _align_walls() -> None:
     """:func:`mapper.cycles.align_points` of the room's walls, 11 points along each with their unit
     normals (world frame), onto themselves."""
-    from mapper.cycles import align_points
-
     a, b = _WALLS[:, 0], _WALLS[:, 1]
     f = np.linspace(0.0, 1.0, 11)
     pts = (a[:, None, :] + f[None, :, None] * (b - a)[:, None, :]).reshape(-1, 2)
@@ -83,6 +83,4 @@ def _lying_along_walls() -> None:
     """:func:`mapper.asr_builder._lying_along` of the room's walls against themselves: the search
     for passed exits and dropped exit segments, which the synthetic room's views never need (its
     doorway is not crossed) and a real run does within its first minutes (Intel raw)."""
-    from mapper.asr_builder import _lying_along
-
     _lying_along(_WALLS, _WALLS, 0.1)
