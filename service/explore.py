@@ -231,8 +231,8 @@ class ExploreParams:
     #: loop, and links the two places for backtracking. Without it, `lab` seed 3 backed out of a
     #: 6.7 m² piece whose centre lay in the 62 m² first ASR (the centre crosscheck held one way
     #: only) and the loop round the north table island stayed open; held-out `lab` seed 12 flipped
-    #: between two ASRs at a corridor corner with no link back and left a region unentered. One
-    #: such crossing per ASR, none from a duplicate.
+    #: between two ASRs at a corridor corner with no link back and left a region unentered. At
+    #: most ``close_per_asr`` such crossings per ASR, none from a duplicate.
     close_loops: bool = True
     close_min_hops: int = 3
     #: How many such crossings may follow one another, each from the ASR the one before made (when
@@ -241,9 +241,17 @@ class ExploreParams:
     #: into known space of its own, and each crossing further along makes one more ASR there for
     #: the cycle check; with 1, a robot whose one crossing matched nothing backtracked, the loop
     #: left open. 3 against 1 over `lab` 0-39: whole goal 26 against 20 runs, loops closed 152 of
-    #: 169 against 132 of 153, no false closure (README, "Simulation"); chains of two are common
+    #: 169 against 132 of 153, no false closure (docs/measurement-history.md); chains of two are common
     #: (four in `lab` seed 10), of three rare.
     close_chain: int = 3
+    #: How many exits of one ASR may be so crossed, each into known space held by ASRs not within
+    #: ``close_min_hops`` - 1 links (those of the crossings before count as linked). 1 left `lab`
+    #: seed 1's south corridor ASR, whose crossing into the room had matched, with its west end
+    #: inside the corner piece of the west corridor unlinked and the loop round the room open.
+    #: Stepped `lab` 0-59 with 2 (and each crossing counted when made, not when planned): whole
+    #: goal 42 of 60 runs against 40, loops 244 of 258 against 224 of 244, no false closure
+    #: against one (docs/measurement-history.md).
+    close_per_asr: int = 2
     #: A doorway merged into the way back (README, "Known faults"): when the doorway's exit edges
     #: run on round a corner into the gap the robot came in by, the ASR's exit is the whole run, one
     #: chord, linked back where the robot came from, and the doorway is never a target (`aliasing`
@@ -357,10 +365,10 @@ class Memory:
     #: Exits the robot crossed into an ASR already known, by midpoint per ASR (its frame): they
     #: lead into mapped space, whether or not the mapper linked them; not retried.
     crossed_at: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
-    #: ASRs the robot crossed an exit of to close a loop (``ExploreParams.close_loops``): one
-    #: such crossing per ASR; and the ASRs those crossings made, each with its place in the chain
-    #: of such crossings (1 for the first; ``ExploreParams.close_chain``).
-    closing_from: set[int] = field(default_factory=set)
+    #: How many exits of each ASR the robot crossed to close a loop (``ExploreParams.close_loops``,
+    #: at most ``close_per_asr``); and the ASRs those crossings made, each with its place in the
+    #: chain of such crossings (1 for the first; ``ExploreParams.close_chain``).
+    closing_from: dict[int, int] = field(default_factory=dict)
     closing_made: dict[int, int] = field(default_factory=dict)
 
 
@@ -770,7 +778,6 @@ class Planner:
             return self._through(view, asr, exits[0], "exit", free, (asr.id,))
         closing = self.closing_exit(view, asr, edges)
         if closing is not None:
-            self.memory.closing_from.add(asr.id)
             log.info("exploration: crossing exit %s of ASR %s into known space to close a loop",
                      closing.id, asr.id)
             return self._through(view, asr, closing, "close", free, (asr.id,))
@@ -799,9 +806,11 @@ class Planner:
         None. The exit has no link, is wide enough and has not failed; the space beyond it is
         known (``known_depths``) and held by no ASR within ``close_min_hops`` - 1 links of ``asr``
         (nor their duplicates). None from a duplicate, from an ASR already left so, or from an
-        ASR such a crossing made ``close_chain`` deep (``Memory.closing_from``, ``closing_made``)."""
+        ASR that made ``close_per_asr`` such crossings, or from one such a crossing made
+        ``close_chain`` deep (``Memory.closing_from``, ``closing_made``)."""
         mem = self.memory
-        if (not self.p.close_loops or asr.duplicate_of is not None or asr.id in mem.closing_from
+        if (not self.p.close_loops or asr.duplicate_of is not None
+                or mem.closing_from.get(asr.id, 0) >= self.p.close_per_asr
                 or mem.closing_made.get(asr.id, 0) >= self.p.close_chain):
             return None
         edges = _edges(view) if edges is None else edges
@@ -1530,9 +1539,14 @@ class Explorer:
         newest, self._last_newest = self._last_newest, max(view.asrs, default=-1)
         g = self.goal
         if (g is not None and g.kind == "close" and self.phase == "through" and g.asr == prev
-                and view.current is not None and view.current > newest):
-            made = self.planner.memory.closing_made
-            made[view.current] = made.get(prev, 0) + 1
+                and view.current is not None and view.current != prev):
+            # Counted once crossed: a closing goal given up for an unknown region that appeared
+            # first is planned again (`lab` seed 29 counted its ASR 4's, gave it up 5 s later and
+            # backtracked, the loop round the north table left open).
+            mem = self.planner.memory
+            mem.closing_from[prev] = mem.closing_from.get(prev, 0) + 1
+            if view.current > newest:
+                mem.closing_made[view.current] = mem.closing_made.get(prev, 0) + 1
         if (g is not None and g.kind == "unknown" and g.asr == prev and prev in view.asrs
                 and view.current is not None and view.current != prev):
             self._left_for_unknown(view.asrs[prev])

@@ -691,17 +691,20 @@ def _ring():
     return [a1, a2, a3, a4]
 
 
-def test_an_unlinked_exit_into_space_an_asr_far_round_the_map_holds_is_crossed_once_to_close_the_loop():
+def test_an_unlinked_exit_into_space_an_asr_far_round_the_map_holds_is_crossed_to_close_the_loop():
     # The robot came round the block into 4; 4's south doorway leads into 1's space, which the map
     # holds (so the doorway needs no exploring) but no link joins 4 to 1: crossing it lets the
-    # mapper's cycle check match the ASR made there with 1. It is chosen once, then the planner
-    # goes on as before (nothing left: done).
+    # mapper's cycle check match the ASR made there with 1. It stays the plan until it is crossed
+    # (or given up); once 4 has made close_per_asr such crossings the planner goes on as before
+    # (nothing left: done).
     planner = Planner()
     v = view(_ring(), 4, pose=(2.0, 2.0, 0.0))
     assert planner.unexplored_exits(v, v.asrs[4]) == []
     g = planner.plan(v)
     assert g.kind == "close" and g.exit == "4/1" and g.asr == 4
     assert g.through == pytest.approx((2.0, -P.through_distance))
+    assert planner.plan(v).kind == "close"
+    planner.memory.closing_from[4] = P.close_per_asr
     assert planner.plan(v).kind == "done"
     # Switched off, or with the space beyond held by an ASR within close_min_hops - 1 links of 4
     # (1 is three links away), the exit is left: the space beyond is known.
@@ -722,9 +725,56 @@ def test_a_loop_closing_crossing_is_driven_like_an_exit_and_ends_in_the_new_asr(
     a5 = room(5, 0, 0, 4, 4, origin=(0.0, 0.0, 0.0), exits=[door(5, 0, (1, 4), (3, 4), to=4)])
     ex.step(view([*rooms, a5], 5, pose=(2.0, 3.0, -math.pi / 2)), none, 1.0)
     assert ex.goal is None or ex.goal.kind != "close"
-    # one such crossing per ASR; 5 is the first of a chain, with no unlinked exit of its own to
-    # go on through (the test below gives it one)
-    assert ex.planner.memory.closing_from == {4} and ex.planner.memory.closing_made == {5: 1}
+    # the crossing is counted for 4; 5 is the first of a chain, with no unlinked exit of its own
+    # to go on through (the test below gives it one)
+    assert ex.planner.memory.closing_from == {4: 1} and ex.planner.memory.closing_made == {5: 1}
+
+
+def test_a_loop_closing_goal_given_up_for_an_unknown_region_is_planned_again():
+    # Lab seed 29: on its way to the closing doorway of 4, 4 grew an unknown region; the goal gave
+    # way to it, and the closing crossing (counted when planned) was never made: the robot
+    # backtracked with the loop open. It counts once crossed, so the plan comes back to it.
+    ex = Explorer()
+    rooms = _ring()
+    none = np.zeros((0, 2))
+    ex.step(view(rooms, 4, pose=(2.0, 2.0, 0.0)), none, 0.0)
+    assert ex.goal.kind == "close"
+    grown = room(4, 0, 0, 4, 4, origin=(0.0, 4.0, 0.0), edges=("exit", "surface", "unknown", "surface"),
+                 exits=[door(4, 0, (4, 1), (4, 3), to=3), door(4, 1, (1, 0), (3, 0))])
+    ex.step(view([*rooms[:3], grown], 4, pose=(2.0, 2.0, 0.0)), none, 0.5)
+    assert ex.goal.kind == "unknown"
+    assert ex.planner.memory.closing_from == {}
+    ex.planner.looked_at(4, ex.goal.look_at)
+    ex.goal = None
+    ex.step(view(rooms, 4, pose=(2.0, 2.0, 0.0)), none, 1.0)
+    assert ex.goal.kind == "close" and ex.goal.exit == "4/1"
+
+
+@pytest.mark.parametrize("per_asr", [1, 2])
+def test_an_asr_crosses_a_second_unlinked_exit_into_other_known_space_up_to_close_per_asr(per_asr):
+    # Lab seed 1: the south corridor's ASR crossed into the room (matched), and its west end lay
+    # in the corner piece of the west corridor with no link: the loop round the room stayed open.
+    # Here 4 has a second unlinked doorway, west, into 6's space (6 far round the map); after the
+    # crossing into 1's space, 4 takes it when close_per_asr allows two.
+    ex = Explorer(ExploreParams(close_per_asr=per_asr))
+    rooms = _ring()
+    a4 = room(4, 0, 0, 4, 4, origin=(0.0, 4.0, 0.0), edges=("exit", "surface", "surface", "exit"),
+              exits=[door(4, 0, (4, 1), (4, 3), to=3), door(4, 1, (1, 0), (3, 0)),
+                     door(4, 2, (0, 1), (0, 3))])
+    a6 = room(6, 0, 0, 4, 4, origin=(-4.0, 4.0, 0.0))
+    none = np.zeros((0, 2))
+    ex.step(view([*rooms[:3], a4, a6], 4, pose=(2.0, 2.0, 0.0)), none, 0.0)
+    assert ex.goal.kind == "close" and ex.goal.exit == "4/1"
+    ex.step(view([*rooms[:3], a4, a6], 4, pose=(*ex.goal.target, -math.pi / 2)), none, 0.5)
+    assert ex.phase == "through"
+    crossed = room(4, 0, 0, 4, 4, origin=(0.0, 4.0, 0.0), edges=("exit", "surface", "surface", "exit"),
+                   exits=[door(4, 0, (4, 1), (4, 3), to=3), door(4, 1, (1, 0), (3, 0), to=7),
+                          door(4, 2, (0, 1), (0, 3))])
+    a7 = room(7, 0, 0, 4, 4, origin=(0.0, 0.0, 0.0), exits=[door(7, 0, (1, 4), (3, 4), to=4)], dup=1)
+    ex.step(view([*rooms[:3], crossed, a6, a7], 7, pose=(2.0, 3.0, -math.pi / 2)), none, 1.0)
+    assert ex.planner.memory.closing_from == {4: 1}
+    g = ex.planner.plan(view([*rooms[:3], crossed, a6, a7], 4, pose=(2.0, 2.0, 0.0)))
+    assert (g.kind, g.exit) == (("close", "4/2") if per_asr == 2 else ("done", None))
 
 
 @pytest.mark.parametrize("chain", [1, 2])
