@@ -247,7 +247,7 @@ class ExploreParams:
     #: How many exits of one ASR may be so crossed, each into known space held by ASRs not within
     #: ``close_min_hops`` - 1 links (those of the crossings before count as linked). 1 left `lab`
     #: seed 1's south corridor ASR, whose crossing into the room had matched, with its west end
-    #: inside the corner piece of the west corridor unlinked and the loop round the room open.
+    #: inside the corner piece of the west corridor unlinked and the loop through the corridor open.
     #: Stepped `lab` 0-59 with 2 (and each crossing counted when made, not when planned): whole
     #: goal 42 of 60 runs against 40, loops 244 of 258 against 224 of 244, no false closure
     #: against one (docs/measurement-history.md).
@@ -805,9 +805,9 @@ class Planner:
         """The widest exit of ``asr`` to cross to close a loop (``ExploreParams.close_loops``), or
         None. The exit has no link, is wide enough and has not failed; the space beyond it is
         known (``known_depths``) and held by no ASR within ``close_min_hops`` - 1 links of ``asr``
-        (nor their duplicates). None from a duplicate, from an ASR already left so, or from an
-        ASR that made ``close_per_asr`` such crossings, or from one such a crossing made
-        ``close_chain`` deep (``Memory.closing_from``, ``closing_made``)."""
+        (nor their duplicates). None from a duplicate, from an ASR that made ``close_per_asr``
+        such crossings, or from one such a crossing made ``close_chain`` deep
+        (``Memory.closing_from``, ``closing_made``)."""
         mem = self.memory
         if (not self.p.close_loops or asr.duplicate_of is not None
                 or mem.closing_from.get(asr.id, 0) >= self.p.close_per_asr
@@ -1542,7 +1542,7 @@ class Explorer:
                 and view.current is not None and view.current != prev):
             # Counted once crossed: a closing goal given up for an unknown region that appeared
             # first is planned again (`lab` seed 29 counted its ASR 4's, gave it up 5 s later and
-            # backtracked, the loop round the north table left open).
+            # backtracked, the loop round the north table island open).
             mem = self.planner.memory
             mem.closing_from[prev] = mem.closing_from.get(prev, 0) + 1
             if view.current > newest:

@@ -753,7 +753,7 @@ def test_a_loop_closing_goal_given_up_for_an_unknown_region_is_planned_again():
 @pytest.mark.parametrize("per_asr", [1, 2])
 def test_an_asr_crosses_a_second_unlinked_exit_into_other_known_space_up_to_close_per_asr(per_asr):
     # Lab seed 1: the south corridor's ASR crossed into the room (matched), and its west end lay
-    # in the corner piece of the west corridor with no link: the loop round the room stayed open.
+    # in the corner piece of the west corridor with no link: the loop through the corridor stayed open.
     # Here 4 has a second unlinked doorway, west, into 6's space (6 far round the map); after the
     # crossing into 1's space, 4 takes it when close_per_asr allows two.
     ex = Explorer(ExploreParams(close_per_asr=per_asr))
