@@ -756,24 +756,25 @@ def test_an_asr_crosses_a_second_unlinked_exit_into_other_known_space_up_to_clos
     # in the corner piece of the west corridor with no link: the loop through the corridor stayed open.
     # Here 4 has a second unlinked doorway, west, into 6's space (6 far round the map); after the
     # crossing into 1's space, 4 takes it when close_per_asr allows two.
+    def four(south_to=None):
+        return room(4, 0, 0, 4, 4, origin=(0.0, 4.0, 0.0), edges=("exit", "surface", "surface", "exit"),
+                    exits=[door(4, 0, (4, 1), (4, 3), to=3), door(4, 1, (1, 0), (3, 0), to=south_to),
+                           door(4, 2, (0, 1), (0, 3))])
+
     ex = Explorer(ExploreParams(close_per_asr=per_asr))
-    rooms = _ring()
-    a4 = room(4, 0, 0, 4, 4, origin=(0.0, 4.0, 0.0), edges=("exit", "surface", "surface", "exit"),
-              exits=[door(4, 0, (4, 1), (4, 3), to=3), door(4, 1, (1, 0), (3, 0)),
-                     door(4, 2, (0, 1), (0, 3))])
+    first3 = _ring()[:3]
     a6 = room(6, 0, 0, 4, 4, origin=(-4.0, 4.0, 0.0))
     none = np.zeros((0, 2))
-    ex.step(view([*rooms[:3], a4, a6], 4, pose=(2.0, 2.0, 0.0)), none, 0.0)
+    before = [*first3, four(), a6]
+    ex.step(view(before, 4, pose=(2.0, 2.0, 0.0)), none, 0.0)
     assert ex.goal.kind == "close" and ex.goal.exit == "4/1"
-    ex.step(view([*rooms[:3], a4, a6], 4, pose=(*ex.goal.target, -math.pi / 2)), none, 0.5)
+    ex.step(view(before, 4, pose=(*ex.goal.target, -math.pi / 2)), none, 0.5)
     assert ex.phase == "through"
-    crossed = room(4, 0, 0, 4, 4, origin=(0.0, 4.0, 0.0), edges=("exit", "surface", "surface", "exit"),
-                   exits=[door(4, 0, (4, 1), (4, 3), to=3), door(4, 1, (1, 0), (3, 0), to=7),
-                          door(4, 2, (0, 1), (0, 3))])
     a7 = room(7, 0, 0, 4, 4, origin=(0.0, 0.0, 0.0), exits=[door(7, 0, (1, 4), (3, 4), to=4)], dup=1)
-    ex.step(view([*rooms[:3], crossed, a6, a7], 7, pose=(2.0, 3.0, -math.pi / 2)), none, 1.0)
+    after = [*first3, four(south_to=7), a6, a7]
+    ex.step(view(after, 7, pose=(2.0, 3.0, -math.pi / 2)), none, 1.0)
     assert ex.planner.memory.closing_from == {4: 1}
-    g = ex.planner.plan(view([*rooms[:3], crossed, a6, a7], 4, pose=(2.0, 2.0, 0.0)))
+    g = ex.planner.plan(view(after, 4, pose=(2.0, 2.0, 0.0)))
     assert (g.kind, g.exit) == (("close", "4/2") if per_asr == 2 else ("done", None))
 
 
