@@ -200,6 +200,10 @@ class Alignment:
     pinned: float | None = None
     """m: when the surfaces left ``axis`` open and the two ASRs' exits fixed it (:func:`exit_pin`),
     the shift along ``axis`` that was added to ``correction``; None otherwise. Set by the caller."""
+    across: float = 0.0
+    """m: how far apart across ``axis`` the matched points of P lie once aligned (5th to 95th
+    percentile of their offsets along the axis's normal): about 0 when one wall carries the whole
+    match, a corridor's width when both its walls do."""
 
 
 def exit_segments(asr: ASR, origin: Pose | None = None) -> np.ndarray:
@@ -349,8 +353,11 @@ def align_points(
     dist = np.abs(np.einsum("ij,ij->i", cur[ok] - qq, nn))
     rms = float(np.sqrt(np.mean(dist**2))) if ok.any() else math.inf
     shift = float(np.hypot(*(cur.mean(axis=0) - p.mean(axis=0))))
-    constraint, axis = 0.0, 0.0
+    constraint, axis, across = 0.0, 0.0, 0.0
     if len(nn):
         w, v = np.linalg.eigh(nn.T @ nn / len(nn))
         constraint, axis = float(w[0]), float(math.atan2(v[1, 0], v[0, 0]))
-    return Alignment((tx, ty, wrap(th)), rms, float(ok.mean()), shift, constraint, axis)
+        offsets = cur[ok] @ np.array([-math.sin(axis), math.cos(axis)])
+        lo, hi = np.percentile(offsets, [5.0, 95.0]).tolist()
+        across = hi - lo
+    return Alignment((tx, ty, wrap(th)), rms, float(ok.mean()), shift, constraint, axis, across=across)

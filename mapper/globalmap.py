@@ -504,9 +504,11 @@ class GlobalMap:
             and a.shift <= p.verify_max_correction
             and abs(a.correction[2]) <= p.verify_max_rotation
             and a.violation <= violation
-            and (a.constraint >= p.verify_constrained or a.pinned is not None
-                 or (not near and (self._anchored(n, m)
-                                   or self._drift_bounded(a, n, m, (poly_n, c_n), (poly_m, c_m)))))
+            and (a.constraint >= p.verify_constrained
+                 or (a.across >= p.verify_min_across
+                     and (a.pinned is not None
+                          or (not near and (self._anchored(n, m)
+                                            or self._drift_bounded(a, n, m, (poly_n, c_n), (poly_m, c_m)))))))
         )
 
     def _drift_bounded(self, a: Alignment, n: int, m: int, placed_n: tuple, placed_m: tuple) -> bool:

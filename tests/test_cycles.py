@@ -262,6 +262,20 @@ def test_icp_recovers_a_small_rigid_misalignment_of_an_l_shaped_wall():
     assert between(a.correction, (0, 0, 0))[2] == pytest.approx(0.05, abs=1e-3)
 
 
+def test_icp_measures_how_far_apart_across_a_corridor_its_matched_walls_lie():
+    # A corridor 2 m wide along x: both walls match, 2 m across its axis; the south wall alone, 0.
+    n = 100
+    south = np.c_[np.linspace(0, 6, n), np.zeros(n)]
+    north = np.c_[np.linspace(0, 6, n), np.full(n, 2.0)]
+    walls = np.concatenate([south, north])
+    normals = np.concatenate([np.tile([0.0, 1.0], (n, 1)), np.tile([0.0, -1.0], (n, 1))])
+    both = align_points(transform_points((0.1, 0.05, 0.02), walls), walls, normals, 0.05, p_normals=normals)
+    one = align_points(transform_points((0.1, 0.05, 0.02), south), walls, normals, 0.05,
+                       p_normals=normals[:n])
+    assert both.constraint < 0.01 and both.across == pytest.approx(2.0, abs=0.05)
+    assert one.constraint < 0.01 and one.across < 0.01
+
+
 def test_hindsight_does_not_accept_a_mere_partial_overlap():
     # 6 sees only the room's western strip: its centre lies in 1 but 1's centre is outside 6 even
     # with the drift undone, so the two are not the same place and stay apart.
@@ -466,8 +480,9 @@ def test_a_crosschecked_revisit_of_a_cluttered_room_may_see_clutter_in_the_other
     assert gm._verified(dataclasses.replace(cluttered, inliers=0.45), 2, 1) is False
     assert gm._verified(dataclasses.replace(cluttered, inliers=0.45, violation=0.04), 2, 1) is True
     # ... as does an alignment its surfaces leave open along one axis (a corridor piece that may
-    # have slid onto its neighbour, seeing its end in the other's free space), placed by its exits ...
-    corridor = dataclasses.replace(cluttered, constraint=0.0, pinned=0.1)
+    # have slid onto its neighbour, seeing its end in the other's free space), placed by its exits
+    # and matched by both its walls, 2 m apart ...
+    corridor = dataclasses.replace(cluttered, constraint=0.0, pinned=0.1, across=2.0)
     assert gm._verified(dataclasses.replace(corridor, violation=0.04), 2, 1) is True
     assert gm._verified(corridor, 2, 1) is False
     # ... as does a candidate with no unaligned crosscheck behind it, and one re-examined in hindsight.
@@ -544,6 +559,22 @@ def test_a_straight_piece_is_closed_by_the_drift_bound_only_while_the_pose_graph
     assert accepted(events) == [(5, 1, "centre-crosscheck")]
     assert any(isinstance(e, CycleRejected) and (e.asr, e.matches, e.reason) == (6, 2, "verification")
                for e in events)
+
+
+def test_a_straight_piece_seen_by_one_wall_is_not_closed():
+    # LOOP's 6 onto 2 again, but 6 has seen only the piece's outer (east) wall, its other sides
+    # unexplored. One wall matches any wall facing the same way (verify_min_across): the anchor,
+    # the drift bound and the exits that place a two-walled piece cannot place this one. With the
+    # rule off it is closed as before.
+    route = [*LOOP[:5], (LOOP[5][0], LOOP[5][1], "SNW")]
+    gm = GlobalMap(FULL)
+    events = drive(gm, route, per_step=(0.15, -0.1, 0.02))
+    assert accepted(events) == [(5, 1, "centre-crosscheck")]
+    assert gm.alignments[(6, 2)].across < 0.01 and gm.alignments[(6, 2)].inliers == 1.0
+    assert any(isinstance(e, CycleRejected) and (e.asr, e.matches, e.reason) == (6, 2, "verification")
+               for e in events)
+    events = drive(GlobalMap(FULL.replace(verify_min_across=0.0)), route, per_step=(0.15, -0.1, 0.02))
+    assert accepted(events) == [(5, 1, "centre-crosscheck"), (6, 2, "centre-crosscheck")]
 
 
 def test_a_straight_piece_is_placed_along_its_length_by_its_exits():
