@@ -506,10 +506,17 @@ class GlobalMap:
             and a.violation <= violation
             and (a.constraint >= p.verify_constrained
                  or (a.across >= p.verify_min_across
-                     and (a.pinned is not None
-                          or (not near and (self._anchored(n, m)
-                                            or self._drift_bounded(a, n, m, (poly_n, c_n), (poly_m, c_m)))))))
+                     and self._placed_along_axis(a, n, m, near, (poly_n, c_n), (poly_m, c_m))))
         )
+
+    def _placed_along_axis(self, a: Alignment, n: int, m: int, near: bool, placed_n: tuple,
+                           placed_m: tuple) -> bool:
+        """Whether something other than the surfaces says where along its open axis an alignment
+        of a straight piece puts n: the exits pinned it, or (not for a ``near`` candidate) the
+        topology anchors it or the pose graph bounds the drift along it. ``placed_n``,
+        ``placed_m``: as :meth:`_drift_bounded` takes them."""
+        return a.pinned is not None or (
+            not near and (self._anchored(n, m) or self._drift_bounded(a, n, m, placed_n, placed_m)))
 
     def _drift_bounded(self, a: Alignment, n: int, m: int, placed_n: tuple, placed_m: tuple) -> bool:
         """Whether the open axis of an alignment (``a.axis``, global frame: along a straight

@@ -712,12 +712,17 @@ def test_an_unlinked_exit_into_space_an_asr_far_round_the_map_holds_is_crossed_t
     assert Planner(ExploreParams(close_min_hops=4)).plan(v).kind == "done"
 
 
-def test_a_loop_closing_crossing_is_driven_like_an_exit_and_ends_in_the_new_asr():
-    ex = Explorer()
-    rooms = _ring()
-    none = np.zeros((0, 2))
+def _heading_to_close(params: ExploreParams | None = None):
+    """An explorer (``params``) in ``_ring``'s 4 that has planned the loop-closing crossing of its
+    south doorway; with the ring and an empty scan."""
+    ex, rooms, none = Explorer(params), _ring(), np.zeros((0, 2))
     ex.step(view(rooms, 4, pose=(2.0, 2.0, 0.0)), none, 0.0)
     assert ex.goal.kind == "close"
+    return ex, rooms, none
+
+
+def test_a_loop_closing_crossing_is_driven_like_an_exit_and_ends_in_the_new_asr():
+    ex, rooms, none = _heading_to_close()
     cmd = ex.step(view(rooms, 4, pose=(*ex.goal.target, -math.pi / 2)), none, 0.5)
     assert ex.phase == "through" and "closing a loop through exit 4/1" in cmd.status
     assert cmd.v > 0.0
@@ -734,11 +739,7 @@ def test_a_loop_closing_goal_given_up_for_an_unknown_region_is_planned_again():
     # Lab seed 29: on its way to the closing doorway of 4, 4 grew an unknown region; the goal gave
     # way to it, and the closing crossing (counted when planned) was never made: the robot
     # backtracked with the loop open. It counts once crossed, so the plan comes back to it.
-    ex = Explorer()
-    rooms = _ring()
-    none = np.zeros((0, 2))
-    ex.step(view(rooms, 4, pose=(2.0, 2.0, 0.0)), none, 0.0)
-    assert ex.goal.kind == "close"
+    ex, rooms, none = _heading_to_close()
     grown = room(4, 0, 0, 4, 4, origin=(0.0, 4.0, 0.0), edges=("exit", "surface", "unknown", "surface"),
                  exits=[door(4, 0, (4, 1), (4, 3), to=3), door(4, 1, (1, 0), (3, 0))])
     ex.step(view([*rooms[:3], grown], 4, pose=(2.0, 2.0, 0.0)), none, 0.5)
@@ -783,10 +784,7 @@ def test_loop_closing_crossings_chain_through_known_space_up_to_close_chain(chai
     # The crossing from 4 made ASR 5 in 1's space, and 5 matched nothing; 5's east doorway, with no
     # link, opens into 2's space (2 is three links from 5: 5-4-3-2). With close_chain 2 the robot
     # crosses it as well, and the ASR that crossing makes (6, second of the chain) makes none.
-    ex = Explorer(ExploreParams(close_chain=chain))
-    rooms = _ring()
-    none = np.zeros((0, 2))
-    ex.step(view(rooms, 4, pose=(2.0, 2.0, 0.0)), none, 0.0)
+    ex, rooms, none = _heading_to_close(ExploreParams(close_chain=chain))
     ex.step(view(rooms, 4, pose=(*ex.goal.target, -math.pi / 2)), none, 0.5)
     a5 = room(5, 0, 0, 4, 4, origin=(0.0, 0.0, 0.0), edges=("surface", "exit", "surface", "surface"),
               exits=[door(5, 0, (1, 4), (3, 4), to=4), door(5, 1, (4, 1), (4, 3))])
