@@ -300,7 +300,7 @@ class GlobalMap:
             if not pm.intersects(centre):
                 # Beyond the paper: near, not containing. Only surface alignment can make it a
                 # match: the crosscheck is run again with the alignment applied (in _verified).
-                align = self._align_near(n, m, poly, cm)
+                align = self._align_near(n, m, poly, cm) if m < n or not p.near_earlier_only else None
                 if align is not None:
                     survivors.append((overlap, m, cm, "aligned-crosscheck", align))
                 continue

@@ -318,6 +318,22 @@ def test_an_aligned_revisit_the_drift_cannot_explain_is_refused():
     assert accepted(drive(off, RETURN, per_step=(0.9, 0.0, 0.0))) == [(3, 1, "aligned-crosscheck")]
 
 
+def test_an_earlier_asr_checked_again_is_not_matched_by_alignment_alone_onto_a_later_one():
+    # RETURN with the search radius off while driving: 3 stays unmatched. Checked again (re-entered
+    # and grown, say), room 1 has the later 3 only within the search radius: that pair is 3 -> 1
+    # tried the other way round (near_earlier_only), so only 3's own check may close it so.
+    def driven(**changes):
+        gm = GlobalMap(FULL.replace(odometry_sigma_xy=0.5, search_radius=0.0))
+        assert accepted(drive(gm, RETURN, per_step=(0.9, 0.0, 0.0))) == []
+        gm.params = gm.params.replace(search_radius=2.0, **changes)
+        return gm
+
+    gm = driven()
+    assert accepted(gm.check(1, 4.0)) == []
+    assert accepted(gm.check(3, 4.0)) == [(3, 1, "aligned-crosscheck")]
+    assert accepted(driven(near_earlier_only=False).check(1, 4.0)) == [(1, 3, "aligned-crosscheck")]
+
+
 def test_a_corridor_just_outside_is_not_matched_by_alignment_alone():
     # Two straight corridor pieces: the alignment along them is unobserved, so no match.
     route = [
