@@ -14,19 +14,11 @@ from pioneer import Pioneer, Timeouts
 from pioneer.emulator import PioneerEmulator
 from pioneer.params import P2DX
 from service.motion import MotionGate, stop_on_thread_crash
+from tests.waiting import until
 
 QUICK = replace(P2DX, trans_accel=5000, trans_decel=5000, rot_accel=2000, rot_decel=2000)
 FAST = Timeouts(sync_reply=0.2, sync_attempts=5, close_settle=0.15, first_sip=0.5, keepalive=0.2,
                 link_lost=0.4, reconnect_min=0.05, reconnect_max=0.2)
-
-
-def _until(cond, timeout: float) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if cond():
-            return True
-        time.sleep(0.01)
-    return bool(cond())
 
 
 @pytest.fixture
@@ -42,7 +34,7 @@ def test_without_a_new_command_for_half_a_second_the_robot_is_stopped(robot):
     gate = MotionGate(dev.set_velocity, dev.stop, max_age=0.5).start()
     try:
         gate.command(0.3, 0.0, "explore")
-        assert _until(lambda: emu.wheel_speeds[0] > 0.25, 1.0)
+        assert until(lambda: emu.wheel_speeds[0] > 0.25, 1.0)
         for _ in range(8):  # a fresh source keeps it driving: 0.8 s of commands every 0.1 s
             time.sleep(0.1)
             # taken before the command: the gate's 0.5 s run from inside it (CI once saw 0.4997 s
@@ -51,10 +43,10 @@ def test_without_a_new_command_for_half_a_second_the_robot_is_stopped(robot):
             gate.command(0.3, 0.0, "explore")
         # the source hangs; the driver's PULSEs keep P2OS's watchdog fed
         assert emu.wheel_speeds[0] > 0.25 and gate.expired == 0
-        assert _until(lambda: gate.expired == 1, 1.0)
+        assert until(lambda: gate.expired == 1, 1.0)
         assert 0.5 <= gate.last_stop[0] - silent < 0.6
         assert gate.last_stop[1].startswith("no motion command from explore for 0.5")
-        assert _until(lambda: emu.wheel_speeds == (0.0, 0.0), 1.0)
+        assert until(lambda: emu.wheel_speeds == (0.0, 0.0), 1.0)
         assert emu.counters["watchdog_trips"] == 0, "stopped by P2OS's watchdog, not by the gate"
     finally:
         gate.close()
@@ -64,10 +56,10 @@ def test_closing_the_gate_stops_the_robot(robot):
     dev, emu = robot
     gate = MotionGate(dev.set_velocity, dev.stop).start()
     gate.command(0.0, 0.5, "explore")
-    assert _until(lambda: emu.wheel_speeds[1] > 0.05, 1.0)
+    assert until(lambda: emu.wheel_speeds[1] > 0.05, 1.0)
     gate.close()
     assert gate.last_stop[1] == "shutting down"
-    assert _until(lambda: emu.wheel_speeds == (0.0, 0.0), 1.0)
+    assert until(lambda: emu.wheel_speeds == (0.0, 0.0), 1.0)
 
 
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
@@ -82,7 +74,7 @@ def test_a_thread_dying_of_an_exception_stops_the_robot(robot):
     restore = stop_on_thread_crash(stop)
     try:
         dev.set_velocity(0.3, 0.0)
-        assert _until(lambda: emu.wheel_speeds[0] > 0.25, 1.0)
+        assert until(lambda: emu.wheel_speeds[0] > 0.25, 1.0)
 
         def worker() -> None:
             raise RuntimeError("boom")
@@ -91,7 +83,7 @@ def test_a_thread_dying_of_an_exception_stops_the_robot(robot):
         t.start()
         t.join()
         assert reasons == ["thread worker died: RuntimeError: boom"]
-        assert _until(lambda: emu.wheel_speeds == (0.0, 0.0), 1.0)
+        assert until(lambda: emu.wheel_speeds == (0.0, 0.0), 1.0)
     finally:
         restore()
 
@@ -101,12 +93,12 @@ def test_after_any_reconnect_zero_velocity_precedes_enable(pty_pair):
     first = PioneerEmulator(pty_pair.master, QUICK, sip_cycle=0.05).start()
     with Pioneer(pty_pair.path, params=QUICK, timeouts=FAST) as dev:
         dev.set_velocity(0.3, 0.0)
-        assert _until(lambda: first.wheel_speeds[0] > 0.25, 1.0)
+        assert until(lambda: first.wheel_speeds[0] > 0.25, 1.0)
         first.stop()
-        assert _until(lambda: dev.link_state == "lost", 1.0)
+        assert until(lambda: dev.link_state == "lost", 1.0)
         second = PioneerEmulator(pty_pair.master, QUICK, sip_cycle=0.05).start()
         try:
-            assert _until(lambda: dev.link_state == "up", 3.0)
+            assert until(lambda: dev.link_state == "up", 3.0)
             seen = [(name, value) for _, name, value in second.received]
             opened = seen.index(("OPEN", None))
             assert seen[opened + 1: opened + 4] == [("VEL", 0), ("RVEL", 0), ("ENABLE", 1)]

@@ -15,6 +15,7 @@ from pioneer.commands import Command, command
 from pioneer.emulator import PioneerEmulator
 from pioneer.odometry import normalize_angle
 from pioneer.params import P2DX
+from tests.waiting import until
 
 QUICK = replace(P2DX, trans_accel=5000, trans_decel=5000, rot_accel=2000, rot_decel=2000)
 FAST = Timeouts(sync_reply=0.2, sync_attempts=5, close_settle=0.15, first_sip=0.5, keepalive=0.2,
@@ -44,15 +45,6 @@ def emu(pty_pair):
 def robot(pty_pair, emu):
     with _pioneer(pty_pair) as p:
         yield p
-
-
-def _until(cond, timeout: float = 2.0, step: float = 0.01) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if cond():
-            return True
-        time.sleep(step)
-    return bool(cond())
 
 
 def _settle(robot: Pioneer, cycles: int = 4) -> None:
@@ -86,7 +78,7 @@ def test_sip_during_handshake_leads_to_close_and_a_fresh_handshake(pty_pair, emu
         time.sleep(0.03)
     leftover.write(command(Command.OPEN, 1))
     leftover.close()
-    assert _until(lambda: emu.counters["sips_sent"] > 2)
+    assert until(lambda: emu.counters["sips_sent"] > 2)
     with _pioneer(pty_pair) as p:
         assert p.counters["handshake_closes"] >= 1
         assert p.link_state == "up"
@@ -121,7 +113,7 @@ def test_odometry_records_are_stamped_on_receipt_and_delivered_to_callbacks(robo
     assert robot.history()[-1] == robot.odometry
 
 
-def _drive_until(robot: Pioneer, v: float, w: float, done, timeout: float = 3.0) -> None:
+def _driveuntil(robot: Pioneer, v: float, w: float, done, timeout: float = 3.0) -> None:
     robot.set_velocity(v, w)
     start = robot.odometry
     end = time.monotonic() + timeout
@@ -137,8 +129,8 @@ def test_square_odometry_matches_the_robot_and_the_true_pose_within_the_error_mo
         with _pioneer(pty_pair) as robot:
             _settle(robot, 2)
             for _ in range(4):
-                _drive_until(robot, 2.0, 0.0, lambda a, b: math.hypot(b.x - a.x, b.y - a.y) >= 0.4)
-                _drive_until(robot, 0.0, 6.0,
+                _driveuntil(robot, 2.0, 0.0, lambda a, b: math.hypot(b.x - a.x, b.y - a.y) >= 0.4)
+                _driveuntil(robot, 0.0, 6.0,
                              lambda a, b: normalize_angle(b.theta - a.theta) >= math.radians(85))
             _settle(robot, 5)
             odo, hist = robot.odometry, robot.history()
@@ -166,7 +158,7 @@ def test_odometry_is_continuous_across_the_15_bit_wraparound(pty_pair, start, v)
     emu = _emulator(pty_pair, start_pose=start)
     try:
         with _pioneer(pty_pair) as robot:
-            _drive_until(robot, v, 0.0, lambda a, b: math.hypot(b.x, b.y) >= 0.5)
+            _driveuntil(robot, v, 0.0, lambda a, b: math.hypot(b.x, b.y) >= 0.5)
             _settle(robot, 4)
             hist = robot.history()
             raw = [o.sip.xpos if start[2] == 0 else o.sip.ypos for o in hist]
@@ -181,7 +173,7 @@ def test_odometry_is_continuous_across_the_15_bit_wraparound(pty_pair, start, v)
 
 
 def test_reset_odometry_restarts_both_at_the_origin(robot, emu):
-    _drive_until(robot, 1.0, 1.0, lambda a, b: b.x > 0.2)
+    _driveuntil(robot, 1.0, 1.0, lambda a, b: b.x > 0.2)
     _settle(robot, 3)
     robot.reset_odometry()
     _settle(robot, 4)
@@ -193,27 +185,27 @@ def test_reset_odometry_restarts_both_at_the_origin(robot, emu):
 
 def test_velocity_is_clamped_to_the_robot_limits_and_sent_in_mm_and_degrees(robot, emu):
     assert robot.set_velocity(5.0, -20.0) == pytest.approx((2.2, -math.radians(500)))
-    assert _until(lambda: _received(emu)[-2:] == [("VEL", 2200), ("RVEL", -500)])
+    assert until(lambda: _received(emu)[-2:] == [("VEL", 2200), ("RVEL", -500)])
 
 
 def test_wheel_velocities_go_out_as_vel2_and_turn_the_wheels(robot, emu):
     assert robot.set_wheel_velocities(-0.1, 0.1) == pytest.approx((-0.1, 0.1))
-    assert _until(lambda: robot.wait_odometry(1.0).left == pytest.approx(-0.1, abs=0.002))
+    assert until(lambda: robot.wait_odometry(1.0).left == pytest.approx(-0.1, abs=0.002))
     assert robot.odometry.right == pytest.approx(0.1, abs=0.002)
     assert emu.received[-1][1:] == ("VEL2", -(0x10000 - 0xFB05))  # ARIA style: 0x1B + |value|
 
 
 def test_e_stop_halts_the_wheels_at_once(robot, emu):
-    _drive_until(robot, 1.0, 0.0, lambda a, b: b.v > 0.9)
+    _driveuntil(robot, 1.0, 0.0, lambda a, b: b.v > 0.9)
     robot.set_velocity(1.0, 0.0)
     robot.e_stop()
-    assert _until(lambda: "E_STOP" in emu.commands_seen())
-    assert robot.wait_odometry(1.0) and _until(lambda: robot.wait_odometry(1.0).v == 0, 0.2)
+    assert until(lambda: "E_STOP" in emu.commands_seen())
+    assert robot.wait_odometry(1.0) and until(lambda: robot.wait_odometry(1.0).v == 0, 0.2)
 
 
 def test_sonar_off_clears_the_sonar_flags(robot):
     robot.sonar(False)
-    assert _until(lambda: robot.wait_odometry(1.0).sip.sonar_arrays == (False,) * 4)
+    assert until(lambda: robot.wait_odometry(1.0).sip.sonar_arrays == (False,) * 4)
 
 
 # --- the link -----------------------------------------------------------------------------------------
@@ -237,8 +229,8 @@ def test_watchdog_stops_the_robot_when_the_host_goes_silent(pty_pair):
         with _pioneer(pty_pair) as robot:
             robot.set_velocity(0.3, 0.0)
             robot.keepalive_enabled = False
-            assert _until(lambda: emu.counters["watchdog_trips"] == 1, 1.0)
-            assert _until(lambda: robot.wait_odometry(1.0).v == 0.0, 0.5)
+            assert until(lambda: emu.counters["watchdog_trips"] == 1, 1.0)
+            assert until(lambda: robot.wait_odometry(1.0).v == 0.0, 0.5)
             assert robot.link_state == "up"  # the robot still talks; only the host went quiet
     finally:
         emu.stop()
@@ -249,14 +241,14 @@ def test_lost_link_is_reported_and_reconnected_without_resuming_the_velocity(pty
     first = _emulator(pty_pair)
     with _pioneer(pty_pair, on_link=lambda state, reason: events.append(state)) as robot:
         robot.set_velocity(0.3, 0.0)
-        assert _until(lambda: robot.odometry.v > 0.25)
+        assert until(lambda: robot.odometry.v > 0.25)
         first.stop()  # the robot goes away...
-        assert _until(lambda: robot.link_state == "lost", 1.0)
+        assert until(lambda: robot.link_state == "lost", 1.0)
         with pytest.raises(LinkLost, match="lost"):
             robot.set_velocity(0.1, 0.0)
         second = _emulator(pty_pair)  # ... and comes back, freshly powered on
         try:
-            assert _until(lambda: robot.link_state == "up", 3.0)
+            assert until(lambda: robot.link_state == "up", 3.0)
             _settle(robot, 4)
             assert events == ["up", "lost", "connecting", "up"]
             assert robot.counters["reconnects"] == 1 and robot.counters["links_lost"] == 1
@@ -271,12 +263,12 @@ def test_lost_link_is_reported_and_reconnected_without_resuming_the_velocity(pty
 def test_leaving_the_context_by_exception_stops_the_motors_and_closes(pty_pair, emu):
     with pytest.raises(RuntimeError, match="boom"), _pioneer(pty_pair) as robot:
         robot.set_velocity(0.5, 0.0)
-        assert _until(lambda: robot.wait_odometry(1.0).v > 0.4)
+        assert until(lambda: robot.wait_odometry(1.0).v > 0.4)
         raise RuntimeError("boom")
-    assert _until(lambda: emu.state == "waiting", 1.0)
+    assert until(lambda: emu.state == "waiting", 1.0)
     assert _received(emu)[-3:] == [("STOP", None), ("ENABLE", 0), ("CLOSE", None)]
     assert not emu.motors_enabled
-    assert _until(lambda: emu.wheel_speeds == (0.0, 0.0), 1.0)
+    assert until(lambda: emu.wheel_speeds == (0.0, 0.0), 1.0)
     assert robot.link_state == "closed"
 
 
@@ -287,12 +279,12 @@ def test_the_e_stop_and_a_low_battery_are_alerts_naming_the_remedy(robot, emu):
     assert robot.alerts == ()
     emu.estop_button = True
     emu.battery = 10.7
-    assert _until(lambda: len(robot.alerts) == 2, 1.0), robot.alerts
+    assert until(lambda: len(robot.alerts) == 2, 1.0), robot.alerts
     estop, battery = robot.alerts
     assert estop.startswith("Pioneer e-stop pressed") and "release the red STOP button" in estop
     assert battery.startswith("Pioneer battery low: 10.7 V (below 11.0 V)") and "charge" in battery
     emu.estop_button = False  # released: the motors stay off until enabled again
-    assert _until(lambda: robot.alerts[:1] != (estop,), 1.0)
+    assert until(lambda: robot.alerts[:1] != (estop,), 1.0)
     assert robot.alerts[0].startswith("Pioneer motors disabled") and "MOTORS button" in robot.alerts[0]
     emu.battery = 12.5
     robot.close()
@@ -341,7 +333,7 @@ def test_a_robot_that_stops_answering_is_lost_within_a_second(pty_pair):
     with _pioneer(pty_pair, on_link=lambda state, reason: events.append((time.monotonic(), state))):
         silent = time.monotonic()
         first.stop()
-        assert _until(lambda: any(s == "lost" for _, s in events), 1.0)
+        assert until(lambda: any(s == "lost" for _, s in events), 1.0)
         lost = next(t for t, s in events if s == "lost")
         assert lost - silent < 1.0
 

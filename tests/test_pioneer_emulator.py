@@ -16,6 +16,7 @@ from pioneer.emulator import PioneerEmulator
 from pioneer.packet import PacketReader, frame
 from pioneer.params import P2DX
 from pioneer.sip import SIP, decode_config, decode_sip
+from tests.waiting import until
 
 # Quick accelerations so motion settles within a few SIP cycles.
 QUICK = replace(P2DX, trans_accel=3000, trans_decel=3000, rot_accel=1000, rot_decel=1000)
@@ -278,9 +279,8 @@ def test_dhead_turns_by_the_relative_heading(pty_pair, client):
         _open_session(client, command(Command.DHEAD, -90))
         # The turn takes about half a second of wall time; a loaded machine needs longer (CI once
         # read -87.8 degrees at 0.6 s). Wait for it, then check that it stays there.
-        end = time.monotonic() + 5.0
-        while time.monotonic() < end and abs(emu.odometry_pose[2] + math.pi / 2) > math.radians(2):
-            client.read_for(0.05)
+        until(lambda: abs(emu.odometry_pose[2] + math.pi / 2) <= math.radians(2), 5.0, 0.05,
+              wait=client.read_for)
         client.read_for(0.2)
         assert emu.odometry_pose[2] == pytest.approx(-math.pi / 2, abs=math.radians(2))
 
