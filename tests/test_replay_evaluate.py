@@ -9,7 +9,15 @@ from mapper.document import document_of
 from mapper.globalmap import GlobalMap
 from mapper.se2 import between, compose
 from mapper.types import Odometry, Scan
-from service.evaluate import Track, evaluate, is_corrected, rebuild_corrected, true_pose
+from service.evaluate import (
+    Track,
+    describe_false,
+    evaluate,
+    is_corrected,
+    rebuild_corrected,
+    true_outlines,
+    true_pose,
+)
 from tests.synthetic_asrs import drift, drive
 from tests.test_cycles import LOOP
 
@@ -71,6 +79,24 @@ def test_a_cycle_between_places_that_do_not_overlap_is_a_false_positive():
     )
     ev = evaluate(doc, truth, odo, entered)
     assert ev.false_pairs == ((6, 3),) and ev.precision == pytest.approx(2 / 3)
+
+
+def test_a_false_positive_is_reported_with_each_true_centres_depth_inside_the_other():
+    gm, truth, odo, entered = _loop(CycleParams.paper())
+    doc = document_of(gm)
+    doc["cycles"].append(
+        {"time": 6.5, "asr": 6, "matches": 3, "accepted": True, "iou": 0.1, "reason": "test"}
+    )
+    ev = evaluate(doc, truth, odo, entered)
+    ((i, j, a, b),) = ev.false_depths
+    assert (i, j) == ev.false_pairs[0] == (6, 3)
+    _, polys, centres = true_outlines(doc["asrs"], truth, odo)
+    for depth, (k, other) in ((a, (6, 3)), (b, (3, 6))):
+        inside = polys[other].covers(centres[k])
+        assert (depth >= 0) == inside
+        assert abs(depth) == pytest.approx(polys[other].exterior.distance(centres[k]), abs=1e-9)
+    assert min(a, b) < 0  # a pair whose centres both lie inside the other would truly overlap
+    assert describe_false(ev.false_depths) == f"6 -> 3 (centres {a:.2f} / {b:.2f} m inside)"
 
 
 def test_no_cycles_means_no_recall():

@@ -96,6 +96,7 @@ def _transition_line(errors) -> str:
 
 def summary(res) -> list[str]:
     """The figures of a replay, one per line."""
+    from service.evaluate import describe_false
     doc = res.document
     accepted = sum(1 for c in doc["cycles"] if c["accepted"])
     lines = [
@@ -109,7 +110,7 @@ def summary(res) -> list[str]:
     if ev is not None:
         lines += [
             f"precision: {_fmt(ev.precision, True)} ({ev.true_positives} of {ev.cycles} cycles truly overlap)"
-            + (f", false: {list(ev.false_pairs)}" if ev.false_pairs else ""),
+            + (f", false: {describe_false(ev.false_depths)}" if ev.false_depths else ""),
             f"revisits: {ev.revisits}, detected: {ev.detected}, recall: {_fmt(ev.recall, True)} "
             f"({ev.evaluated} of {ev.asrs} ASRs inside the truth's time span)",
             _drift_line(ev.revisit_drift),

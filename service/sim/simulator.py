@@ -43,7 +43,7 @@ from mapper.se2 import Pose, compose, inverse
 from mapper.types import Odometry, Scan
 from pioneer.physics import DiffDrive, OdometryError
 from service.config import LASER_BAUDS, PIONEER_BAUDS
-from service.evaluate import Track, evaluate
+from service.evaluate import Track, describe_false, evaluate
 from service.explore import Command, ExploreParams, Explorer, MapView, links_of, scan_points
 from service.sim import loops
 from service.sim.physics import Body
@@ -239,6 +239,8 @@ class Summary:
     scans: int = 0
     scans_dropped: int = 0
     false_pairs: tuple = ()
+    #: Each false closure with its two true centre depths (:attr:`service.evaluate.Evaluation.false_depths`).
+    false_depths: tuple = ()
     #: Exits the explorer tried and gave up in its last round (stuck, blocked, leading back), left
     #: unexplored when it declared exploration complete: "complete" then means nothing was left
     #: that it could reach, not that nothing was left.
@@ -271,7 +273,7 @@ class Summary:
             f"({self.realtime_factor:.1f}x real time)",
             f"ASRs {self.asrs}, exits {self.exits} ({self.exits_unexplored} unexplored)",
             f"cycles detected {self.cycles}: {self.true_cycles} true, {self.false_cycles} false"
-            + (f" {list(self.false_pairs)}" if self.false_pairs else ""),
+            + (f": {describe_false(self.false_depths)}" if self.false_depths else ""),
             f"revisits {self.revisits}, missed {self.revisits_missed}",
             f"loops driven {self.loops_driven} (the world has {self.holes} holes), "
             f"closed by the map {self.loops_closed}",
@@ -325,10 +327,10 @@ def summarise(world: World, doc: dict, robot: SimRobot, odometry: Track, entered
         ev = evaluate(doc, truth, odometry, entered_from, margin=math.inf)
         cycles, tp, fp, rev, det, pairs = (ev.cycles, ev.true_positives, ev.false_positives, ev.revisits,
                                            ev.detected, ev.false_pairs)
-        true_pairs = ev.true_pairs
+        true_pairs, depths = ev.true_pairs, ev.false_depths
     else:
         cycles = tp = fp = rev = det = 0
-        pairs = true_pairs = ()
+        pairs = true_pairs = depths = ()
     holes, loops_driven, loops_closed = loops.count(world, doc, truth, odometry, list(crossings), true_pairs)
     exits = [e for a in asrs for e in a.get("exits", [])]
     visited = {world.region_of(p[0], p[1]) for p in truth.poses[:: max(1, len(truth) // 5000)]}
@@ -343,7 +345,7 @@ def summarise(world: World, doc: dict, robot: SimRobot, odometry: Track, entered
         exits_given_up=len(explorer.planner.memory.failed_exits) if explorer else 0,
         regions_visited=[n for n in names if n in visited],
         regions_missed=[n for n in names if n not in visited],
-        false_pairs=pairs,
+        false_pairs=pairs, false_depths=depths,
         holes=holes, loops_driven=loops_driven, loops_closed=loops_closed,
         wedged=_wedged(truth, robot.body.contacts, sim_time),
     )
