@@ -113,7 +113,7 @@ def test_odometry_records_are_stamped_on_receipt_and_delivered_to_callbacks(robo
     assert robot.history()[-1] == robot.odometry
 
 
-def _driveuntil(robot: Pioneer, v: float, w: float, done, timeout: float = 3.0) -> None:
+def _drive_until(robot: Pioneer, v: float, w: float, done, timeout: float = 3.0) -> None:
     robot.set_velocity(v, w)
     start = robot.odometry
     end = time.monotonic() + timeout
@@ -129,8 +129,8 @@ def test_square_odometry_matches_the_robot_and_the_true_pose_within_the_error_mo
         with _pioneer(pty_pair) as robot:
             _settle(robot, 2)
             for _ in range(4):
-                _driveuntil(robot, 2.0, 0.0, lambda a, b: math.hypot(b.x - a.x, b.y - a.y) >= 0.4)
-                _driveuntil(robot, 0.0, 6.0,
+                _drive_until(robot, 2.0, 0.0, lambda a, b: math.hypot(b.x - a.x, b.y - a.y) >= 0.4)
+                _drive_until(robot, 0.0, 6.0,
                              lambda a, b: normalize_angle(b.theta - a.theta) >= math.radians(85))
             _settle(robot, 5)
             odo, hist = robot.odometry, robot.history()
@@ -158,7 +158,7 @@ def test_odometry_is_continuous_across_the_15_bit_wraparound(pty_pair, start, v)
     emu = _emulator(pty_pair, start_pose=start)
     try:
         with _pioneer(pty_pair) as robot:
-            _driveuntil(robot, v, 0.0, lambda a, b: math.hypot(b.x, b.y) >= 0.5)
+            _drive_until(robot, v, 0.0, lambda a, b: math.hypot(b.x, b.y) >= 0.5)
             _settle(robot, 4)
             hist = robot.history()
             raw = [o.sip.xpos if start[2] == 0 else o.sip.ypos for o in hist]
@@ -173,7 +173,7 @@ def test_odometry_is_continuous_across_the_15_bit_wraparound(pty_pair, start, v)
 
 
 def test_reset_odometry_restarts_both_at_the_origin(robot, emu):
-    _driveuntil(robot, 1.0, 1.0, lambda a, b: b.x > 0.2)
+    _drive_until(robot, 1.0, 1.0, lambda a, b: b.x > 0.2)
     _settle(robot, 3)
     robot.reset_odometry()
     _settle(robot, 4)
@@ -196,7 +196,7 @@ def test_wheel_velocities_go_out_as_vel2_and_turn_the_wheels(robot, emu):
 
 
 def test_e_stop_halts_the_wheels_at_once(robot, emu):
-    _driveuntil(robot, 1.0, 0.0, lambda a, b: b.v > 0.9)
+    _drive_until(robot, 1.0, 0.0, lambda a, b: b.v > 0.9)
     robot.set_velocity(1.0, 0.0)
     robot.e_stop()
     assert until(lambda: "E_STOP" in emu.commands_seen())
