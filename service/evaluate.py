@@ -183,7 +183,6 @@ class Evaluation:
     frame_error_after: float
     heading_error_before: float
     heading_error_after: float
-    false_pairs: tuple[tuple[int, int], ...] = ()
     revisit_drift: tuple[float, ...] = ()
     """m, one per revisit: how far the dead-reckoned ASR frames place the revisiting ASR from the
     earlier one, against the truth (the smallest over the earlier ASRs it overlaps). The cycle check
@@ -192,13 +191,18 @@ class Evaluation:
     """(ASR, the earlier ASR it matched, the decision's time in s) of each true positive."""
     false_depths: tuple[tuple[int, int, float, float], ...] = ()
     """(ASR, the ASR it matched, how far the first's true centre lies inside the second's true
-    polygon, and the second's inside the first's; m, negative outside) of each false positive, in
-    the order of ``false_pairs``: a few centimetres outside is a shallow closure of the same
-    place, metres outside a closure of another place (:func:`describe_false`)."""
+    polygon, and the second's inside the first's; m, negative outside) of each false positive: a
+    few centimetres outside is a shallow closure of the same place, metres outside a closure of
+    another place (:func:`describe_false`)."""
     transition_errors: tuple[tuple[float, float, float], ...] = ()
     """(distance between the two frames in m, position error in m, heading error in rad, signed)
     of each transition, parent to child, by the dead-reckoned frames against the true ones (see the
     module docstring): what the odometry edges of the pose graph got wrong."""
+
+    @property
+    def false_pairs(self) -> tuple[tuple[int, int], ...]:
+        """(ASR, the ASR it matched) of each false positive."""
+        return tuple((i, j) for i, j, _, _ in self.false_depths)
 
     @property
     def precision(self) -> float:
@@ -339,7 +343,6 @@ def evaluate(
         frame_error_after=ea,
         heading_error_before=hb,
         heading_error_after=ha,
-        false_pairs=fp,
         revisit_drift=tuple(drift),
         true_pairs=tuple((c["asr"], c["matches"], float(c["time"])) for c in tp),
         false_depths=tuple((i, j, depth(i, j), depth(j, i)) for i, j in fp),

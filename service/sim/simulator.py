@@ -238,7 +238,6 @@ class Summary:
     regions_missed: list[str]
     scans: int = 0
     scans_dropped: int = 0
-    false_pairs: tuple = ()
     #: Each false closure with its two true centre depths (:attr:`service.evaluate.Evaluation.false_depths`).
     false_depths: tuple = ()
     #: Exits the explorer tried and gave up in its last round (stuck, blocked, leading back), left
@@ -259,6 +258,11 @@ class Summary:
     #: moved less than ``WEDGED_DISTANCE`` and touched something. An exploration that ends so has
     #: given up its last goals because the robot could not move, not because nothing was left.
     wedged: tuple[float, float] | None = None
+
+    @property
+    def false_pairs(self) -> tuple[tuple[int, int], ...]:
+        """(ASR, the ASR it matched) of each false closure."""
+        return tuple((i, j) for i, j, _, _ in self.false_depths)
 
     @property
     def realtime_factor(self) -> float:
@@ -325,12 +329,11 @@ def summarise(world: World, doc: dict, robot: SimRobot, odometry: Track, entered
     asrs = doc.get("asrs", [])
     if asrs and len(truth) and len(odometry):
         ev = evaluate(doc, truth, odometry, entered_from, margin=math.inf)
-        cycles, tp, fp, rev, det, pairs = (ev.cycles, ev.true_positives, ev.false_positives, ev.revisits,
-                                           ev.detected, ev.false_pairs)
+        cycles, tp, fp, rev, det = ev.cycles, ev.true_positives, ev.false_positives, ev.revisits, ev.detected
         true_pairs, depths = ev.true_pairs, ev.false_depths
     else:
         cycles = tp = fp = rev = det = 0
-        pairs = true_pairs = depths = ()
+        true_pairs = depths = ()
     holes, loops_driven, loops_closed = loops.count(world, doc, truth, odometry, list(crossings), true_pairs)
     exits = [e for a in asrs for e in a.get("exits", [])]
     visited = {world.region_of(p[0], p[1]) for p in truth.poses[:: max(1, len(truth) // 5000)]}
@@ -345,7 +348,7 @@ def summarise(world: World, doc: dict, robot: SimRobot, odometry: Track, entered
         exits_given_up=len(explorer.planner.memory.failed_exits) if explorer else 0,
         regions_visited=[n for n in names if n in visited],
         regions_missed=[n for n in names if n not in visited],
-        false_pairs=pairs, false_depths=depths,
+        false_depths=depths,
         holes=holes, loops_driven=loops_driven, loops_closed=loops_closed,
         wedged=_wedged(truth, robot.body.contacts, sim_time),
     )
