@@ -2,7 +2,9 @@
 
 Plain SVG text, written by hand (no plotting dependency). Left: the topological map, nodes = ASRs
 numbered in creation order, placed at their centres in the global frame so that the graph reads like
-the place; links as lines, one-way links to duplicates dashed with an arrow, cycle links red.
+the place (a node that would cover one drawn before it, as a duplicate covers the ASR it matched, is
+moved aside just far enough that both numbers read); links as lines, one-way links to duplicates
+dashed with an arrow, cycle links red.
 Right: the global metric map, every ASR polygon in the global frame with its edges coloured by label
 (surface black, exit green, unknown grey dashed), exits drawn thick, centres dotted, duplicates
 hatched. The y axis points up as in the map (SVG's points down).
@@ -23,6 +25,8 @@ from service.argtypes import write_output
 
 PANEL = 560.0
 MARGIN = 30.0
+NODE_RADIUS = 8.0  # px, a topological node's circle
+NODE_GAP = 2.0 * NODE_RADIUS + 2.0  # px between two nodes' centres at the least
 EXIT_STYLE = 'stroke="#1a9a3a" stroke-width="2.5" stroke-opacity="0.5"'
 EDGE_STYLE = {
     "surface": 'stroke="#111" stroke-width="1.6"',
@@ -60,6 +64,26 @@ class _View:
 
     def path(self, pts) -> str:
         return " ".join(f"{x:.1f},{y:.1f}" for x, y in (self(p) for p in pts))
+
+
+def _spread(xy: dict[int, tuple[float, float]], gap: float = NODE_GAP) -> dict[int, tuple[float, float]]:
+    """Node positions (px) moved apart so that no two lie closer than ``gap``. Nodes are placed in
+    id order (creation order); a node that lands too near one already placed is pushed away from
+    it, along the line between them (straight down-right when they coincide), until it is clear.
+    Deterministic; a node far from every other keeps its place."""
+    placed: dict[int, tuple[float, float]] = {}
+    for k in sorted(xy):
+        x, y = xy[k]
+        for _ in range(50):
+            near = [(px, py) for px, py in placed.values() if math.hypot(x - px, y - py) < gap - 1e-9]
+            if not near:
+                break
+            px, py = min(near, key=lambda q: math.hypot(x - q[0], y - q[1]))
+            d = math.hypot(x - px, y - py)
+            ux, uy = ((x - px) / d, (y - py) / d) if d > 1e-6 else (math.sqrt(0.5), math.sqrt(0.5))
+            x, y = px + ux * gap, py + uy * gap
+        placed[k] = (x, y)
+    return placed
 
 
 def _cycle_links(doc: dict) -> set[tuple[int, int]]:
@@ -122,13 +146,16 @@ def render_svg(doc: dict, title: str | None = None) -> str:
             o.append(_line(right(seg[0]), right(seg[1]), EXIT_STYLE))
         x, y = right(c)
         o.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="2.5" fill="#c0392b"/>')
-        o.append(f'<text x="{x + 3:.1f}" y="{y - 3:.1f}" font-size="9" fill="#333">{k}</text>')
+        # A duplicate's centre lies near its original's: its number goes below the dot, not above.
+        ty = y + 11 if k in dups else y - 3
+        o.append(f'<text x="{x + 3:.1f}" y="{ty:.1f}" font-size="9" fill="#333">{k}</text>')
 
     # Topological map.
+    node = _spread({k: left(c) for k, (_, c, _) in geo.items()})
     for ln in doc.get("links", []):
         if ln["from"] not in geo or ln["to"] not in geo:
             continue
-        (x1, y1), (x2, y2) = left(geo[ln["from"]][1]), left(geo[ln["to"]][1])
+        (x1, y1), (x2, y2) = node[ln["from"]], node[ln["to"]]
         if ln["oneway"]:
             # Stop short of the node so the arrow head shows.
             d = math.hypot(x2 - x1, y2 - y1) or 1.0
@@ -142,11 +169,11 @@ def render_svg(doc: dict, title: str | None = None) -> str:
     for k, m in dups.items():
         if k in geo and m in geo:
             dashed = 'stroke="#c0392b" stroke-width="1" stroke-dasharray="2 2"'
-            o.append(_line(left(geo[k][1]), left(geo[m][1]), dashed, f"ASR {k} duplicates ASR {m}"))
-    for k, (_, c, _) in geo.items():
-        x, y = left(c)
+            o.append(_line(node[k], node[m], dashed, f"ASR {k} duplicates ASR {m}"))
+    for k in geo:
+        x, y = node[k]
         ring = 'stroke="#d08a2a" stroke-width="2.5"' if k in dups else 'stroke="#1f4e79" stroke-width="1.5"'
-        o.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="8" fill="white" {ring}/>')
+        o.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="{NODE_RADIUS:g}" fill="white" {ring}/>')
         o.append(f'<text x="{x:.1f}" y="{y + 3:.1f}" font-size="8" text-anchor="middle">{k}</text>')
 
     legend = [

@@ -1,11 +1,12 @@
 """SVG of a map document: well-formed, every ASR drawn in both panels, one-way and cycle links marked."""
 
+import math
 import xml.etree.ElementTree as ET
 
 from mapper.cycle_params import CycleParams
 from mapper.document import document_of
 from mapper.globalmap import GlobalMap
-from service.render import render_svg, write_svg
+from service.render import NODE_GAP, NODE_RADIUS, _spread, render_svg, write_svg
 from tests.synthetic_asrs import drive
 from tests.test_cycles import LOOP
 
@@ -74,3 +75,23 @@ def test_asrmap_render_refuses_a_binary_file_naming_it(tmp_path, capsys):
     assert main(["render", str(src), "--svg", str(tmp_path / "x.svg")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(src) in err[0] and "not JSON" in err[0]
+
+
+def test_topological_nodes_do_not_cover_each_other_and_lone_nodes_keep_their_place():
+    """A duplicate's node lies on its original's (same place): it is moved aside so both numbers
+    read; nodes far from every other stay at their ASR's centre."""
+    doc = _doc()
+    assert any(a.get("duplicate_of") is not None for a in doc["asrs"])
+    root = ET.fromstring(render_svg(doc).encode())
+    nodes = [(float(c.get("cx")), float(c.get("cy"))) for c in root.findall("svg:circle", NS)
+             if c.get("r") == f"{NODE_RADIUS:g}"]
+    assert len(nodes) == len(doc["asrs"])
+    for i, (x, y) in enumerate(nodes):
+        for u, v in nodes[:i]:
+            assert math.hypot(x - u, y - v) >= 2 * NODE_RADIUS
+
+    spread = _spread({1: (100.0, 100.0), 2: (100.0, 100.0), 3: (105.0, 100.0), 4: (300.0, 50.0)})
+    assert spread[1] == (100.0, 100.0) and spread[4] == (300.0, 50.0)
+    pts = list(spread.values())
+    gaps = [math.hypot(p[0] - q[0], p[1] - q[1]) for i, p in enumerate(pts) for q in pts[:i]]
+    assert min(gaps) >= NODE_GAP - 1e-6
