@@ -68,20 +68,22 @@ class _View:
 
 def _spread(xy: dict[int, tuple[float, float]], gap: float = NODE_GAP) -> dict[int, tuple[float, float]]:
     """Node positions (px) moved apart so that no two lie closer than ``gap``. Nodes are placed in
-    id order (creation order); a node that lands too near one already placed is pushed away from
-    it, along the line between them (straight down-right when they coincide), until it is clear.
-    Deterministic; a node far from every other keeps its place."""
+    id order (creation order); one that lands too near a node already placed goes to the nearest
+    free point on rings round its own place (radius ``gap``, ``2 gap``, ...; every 30°, starting
+    straight down-right). Deterministic; a node far from every other keeps its place."""
     placed: dict[int, tuple[float, float]] = {}
+
+    def free(x: float, y: float) -> bool:
+        return all(math.hypot(x - px, y - py) >= gap - 1e-9 for px, py in placed.values())
+
     for k in sorted(xy):
         x, y = xy[k]
-        for _ in range(50):
-            near = [(px, py) for px, py in placed.values() if math.hypot(x - px, y - py) < gap - 1e-9]
-            if not near:
-                break
-            px, py = min(near, key=lambda q: math.hypot(x - q[0], y - q[1]))
-            d = math.hypot(x - px, y - py)
-            ux, uy = ((x - px) / d, (y - py) / d) if d > 1e-6 else (math.sqrt(0.5), math.sqrt(0.5))
-            x, y = px + ux * gap, py + uy * gap
+        ring = 0
+        while not free(x, y):
+            ring += 1
+            spots = [(xy[k][0] + ring * gap * math.cos(a), xy[k][1] + ring * gap * math.sin(a))
+                     for a in (math.radians(45.0 + 30.0 * i) for i in range(12))]
+            x, y = next((q for q in spots if free(*q)), (x, y))
         placed[k] = (x, y)
     return placed
 
