@@ -95,3 +95,8 @@ def test_topological_nodes_do_not_cover_each_other_and_lone_nodes_keep_their_pla
     pts = list(spread.values())
     gaps = [math.hypot(p[0] - q[0], p[1] - q[1]) for i, p in enumerate(pts) for q in pts[:i]]
     assert min(gaps) >= NODE_GAP - 1e-6
+    # A dense cluster (an open-plan room of duplicates): 40 nodes within 20 px all come apart.
+    cluster = _spread({k: (200.0 + (k * 7) % 20, 200.0 + (k * 13) % 20) for k in range(40)})
+    pts = list(cluster.values())
+    gaps = [math.hypot(p[0] - q[0], p[1] - q[1]) for i, p in enumerate(pts) for q in pts[:i]]
+    assert min(gaps) >= NODE_GAP - 1e-6
