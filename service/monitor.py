@@ -258,9 +258,16 @@ def status_line(st: dict[str, Any]) -> str:
         parts.append(f"asrs={st['asrs']}")
     if st.get("waiting_for"):
         parts.append(f"waiting for {st['waiting_for']}")
+    explore = _table(st.get("explore"))
+    if explore.get("status") and explore["status"] != "idle":
+        parts.append(f"explore: {explore['status']}")
     stop = _table(st.get("last_stop"))
     if stop.get("reason"):
-        parts.append(f"last stop: {stop['reason']}")
+        # Both times are the service's monotonic clock (s): the age needs no clock of ours.
+        now, then = st.get("t"), stop.get("t")
+        ago = (f" {max(0.0, now - then):.0f} s ago" if isinstance(now, int | float)
+               and isinstance(then, int | float) else "")
+        parts.append(f"last stop{ago}: {stop['reason']}")
     parts += [f"ALERT {a}" for a in motors.get("alerts") or ()]
     return " ".join(parts)
 

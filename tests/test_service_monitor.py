@@ -66,6 +66,18 @@ def test_status_line_shows_timing_motors_the_last_stop_and_alerts():
         "battery=10.60 V E-STOP dropped_scans=0 last stop: the laser is blind ALERT e-stop pressed: x")
 
 
+def test_status_line_shows_what_the_explorer_does_and_how_long_ago_the_robot_was_stopped():
+    """The last stop's age comes from the service's own clock (both times are its monotonic
+    seconds), so a monitor on another computer shows it right."""
+    st = {"t": 5040.2, "pioneer": {"link": "ok"}, "laser": {"link": "ok"},
+          "explore": {"active": True, "status": "to exit 7/0"},
+          "last_stop": {"t": 5002.0, "reason": "the laser is blind"}}
+    assert status_line(st) == ("pioneer=ok laser=ok dropped_scans=0 explore: to exit 7/0 "
+                               "last stop 38 s ago: the laser is blind")
+    idle = {**st, "explore": {"active": False, "status": "idle"}}
+    assert "explore" not in status_line(idle)
+
+
 def test_status_line_names_both_links_rates_battery_and_drops():
     st = {"pioneer": {"link": "ok"}, "laser": {"link": "fault"}, "rates": {"scans": 9.96}, "battery": 12.4,
           "dropped_scans": 3}
