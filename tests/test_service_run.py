@@ -275,6 +275,45 @@ def test_driving_a_loop_publishes_asr_exit_and_cycle_events(tmp_path):
         rig.close()
 
 
+def _explore_until_the_robot_moves(rig: Rig, world) -> None:
+    """``cmd/explore``, then wait until the simulated robot has moved (0.3 m or 0.5 rad)."""
+    rig.ready()
+    start = world.robot.drive.true_pose
+    ok, err = rig.get("asrmap/rig/cmd/explore")
+    assert err is None and ok["exploring"] is True
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline:
+        x, y, th = world.robot.drive.true_pose
+        if math.hypot(x - start[0], y - start[1]) > 0.3 or abs(wrap(th - start[2])) > 0.5:
+            return
+        time.sleep(0.2)
+    raise AssertionError(f"the robot did not move\n{rig.service.log()[-2000:]}")
+
+
+def test_a_service_killed_while_exploring_leaves_the_wheels_stopped(tmp_path):
+    """SIGKILL gives the service no chance to send a stop: the robot's own P2OS watchdog (2 s with
+    no command) must stop the wheels, and nothing may restart them."""
+    from service.sim.simulator import WorldDevices
+    from service.sim.world import load_world
+
+    with WorldDevices(load_world("lab")) as world:
+        rig = Rig(tmp_path, ports=(world.pioneer_path, world.laser_path),
+                  zenoh={"allow_commands": ["explore"]})
+        try:
+            _explore_until_the_robot_moves(rig, world)
+            drive = world.robot.drive
+            rig.service.kill()
+            deadline = time.monotonic() + 4.0  # the 2 s watchdog, then P2OS's deceleration
+            while time.monotonic() < deadline and (drive.left_speed or drive.right_speed):
+                time.sleep(0.05)
+            assert drive.left_speed == 0.0 and drive.right_speed == 0.0
+            pose = drive.true_pose
+            time.sleep(1.0)
+            assert drive.true_pose == pose and drive.left_speed == drive.right_speed == 0.0
+        finally:
+            rig.close()
+
+
 def test_cmd_explore_drives_the_robot_and_cmd_stop_stops_it(tmp_path):
     """In the simulated lab (both emulators ray cast and move in one world), with both commands
     allowed: explore makes the robot move on its own; stop ends exploring and the wheels stop."""
@@ -285,18 +324,7 @@ def test_cmd_explore_drives_the_robot_and_cmd_stop_stops_it(tmp_path):
         rig = Rig(tmp_path, ports=(world.pioneer_path, world.laser_path),
                   zenoh={"allow_commands": ["stop", "explore"]})
         try:
-            rig.ready()
-            start = world.robot.drive.true_pose
-            ok, err = rig.get("asrmap/rig/cmd/explore")
-            assert err is None and ok["exploring"] is True
-            deadline = time.monotonic() + 15
-            while time.monotonic() < deadline:
-                x, y, th = world.robot.drive.true_pose
-                if math.hypot(x - start[0], y - start[1]) > 0.3 or abs(wrap(th - start[2])) > 0.5:
-                    break
-                time.sleep(0.2)
-            else:
-                raise AssertionError(f"the robot did not move\n{rig.service.log()[-2000:]}")
+            _explore_until_the_robot_moves(rig, world)
             ok, err = rig.get("asrmap/rig/cmd/stop")
             assert err is None and ok["stopped"] is True
             time.sleep(1.5)  # P2OS decelerates
