@@ -136,7 +136,8 @@ def open_session(cfg: zenoh.Config, what: str) -> zenoh.Session:
     except zenoh.ZError as exc:
         reason = _reason(exc)
         if "in use" in reason:
-            reason += "; is another asrmap running? choose another port in [zenoh] listen"
+            reason += ("; is another asrmap running? choose another port ([zenoh] listen in the config, "
+                       "--listen for asrmap simulate)")
         raise BusError(f"cannot open the zenoh session ({what}): {reason}") from None
 
 
