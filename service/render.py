@@ -70,21 +70,26 @@ def _spread(xy: dict[int, tuple[float, float]], gap: float = NODE_GAP) -> dict[i
     """Node positions (px) moved apart so that no two lie closer than ``gap``. Nodes are placed in
     id order (creation order); one that lands too near a node already placed goes to the nearest
     free point on rings round its own place (radius ``gap``, ``2 gap``, ...; every 30°, starting
-    straight down-right). Deterministic; a node far from every other keeps its place."""
+    straight down-right). Deterministic; a node far from every other keeps its place. Placed nodes
+    are kept in a grid of ``gap`` cells, so a test looks at 9 cells, not every node."""
     placed: dict[int, tuple[float, float]] = {}
+    grid: dict[tuple[int, int], list[tuple[float, float]]] = {}
 
     def free(x: float, y: float) -> bool:
-        return all(math.hypot(x - px, y - py) >= gap - 1e-9 for px, py in placed.values())
+        i, j = math.floor(x / gap), math.floor(y / gap)
+        return all(math.hypot(x - px, y - py) >= gap - 1e-9
+                   for di in (-1, 0, 1) for dj in (-1, 0, 1) for px, py in grid.get((i + di, j + dj), ()))
 
     for k in sorted(xy):
-        x, y = xy[k]
-        ring = 0
+        x0, y0 = xy[k]
+        x, y, ring = x0, y0, 0
         while not free(x, y):
             ring += 1
-            spots = [(xy[k][0] + ring * gap * math.cos(a), xy[k][1] + ring * gap * math.sin(a))
+            spots = [(x0 + ring * gap * math.cos(a), y0 + ring * gap * math.sin(a))
                      for a in (math.radians(45.0 + 30.0 * i) for i in range(12))]
             x, y = next((q for q in spots if free(*q)), (x, y))
         placed[k] = (x, y)
+        grid.setdefault((math.floor(x / gap), math.floor(y / gap)), []).append((x, y))
     return placed
 
 
