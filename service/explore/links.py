@@ -16,6 +16,8 @@ from service.explore.view import MapView
 
 
 def centre_distance(a: ASR, b: ASR) -> float:
+    """The cost of a hop from ``a`` to ``b`` (m): the distance between their centres in the global
+    frame, plus 0.5 m."""
     ca = transform_points(a.origin, np.array([a.centre]))[0]
     cb = transform_points(b.origin, np.array([b.centre]))[0]
     # A hop costs at least a little so that routes through many tiny ASRs are not free.

@@ -43,9 +43,12 @@ class Planner:
 
     # -- bookkeeping ---------------------------------------------------------------------------
     def looked_at(self, asr: int, point: tuple[float, float]) -> None:
+        """The unknown region at ``point`` (m, ``asr``'s frame) has been looked at."""
         self.memory.looked.setdefault(asr, []).append((float(point[0]), float(point[1])))
 
     def failed(self, asr: int, exit_id: str, midpoint: tuple[float, float] | None = None) -> None:
+        """Exit ``exit_id`` of ``asr`` could not be crossed (its chord's ``midpoint``: m, ``asr``'s
+        frame, so that a relabelled exit at the same place stays failed)."""
         self.memory.failed_exits.add((asr, exit_id))
         if midpoint is not None:
             _add_point(self.memory.failed_at, asr, midpoint)
@@ -310,6 +313,8 @@ class Planner:
 
     # -- the decision --------------------------------------------------------------------------
     def plan(self, view: MapView) -> Goal:
+        """The next :class:`Goal` in ``view`` (targets in the current ASR's frame, m); the order of
+        the choices is :mod:`service.explore`'s."""
         if view.current is None or view.current not in view.asrs:
             return Goal("wait")
         asr = view.asrs[view.current]

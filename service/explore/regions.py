@@ -67,6 +67,8 @@ def unknown_regions(asr: ASR, min_length: float, piece: float) -> list[tuple[flo
 
 
 def free_space(asr: ASR, clearance: float) -> shapely.Geometry:
+    """``asr``'s polygon shrunk by ``clearance`` (m, the ASR's frame): where the robot's centre may
+    go."""
     poly = shapely.make_valid(asr.polygon)
     return poly.buffer(-clearance)
 

@@ -63,7 +63,9 @@ class Goal:
     ``kind``: ``unknown`` (go to ``target``, then face ``look_at``), ``exit`` (an unexplored exit),
     ``close`` (an exit into known space not linked to it: ``ExploreParams.close_loops``),
     ``backtrack`` (a known exit on the way to ``path[-1]``), ``settle`` (just crossed into ``asr``:
-    on to ``target``, the point beyond the exit), ``done`` or ``wait`` (no ASR yet).
+    on to ``target``, the point beyond the exit), ``goto`` (no route on the topological map: across
+    the ASR towards the nearest unexplored exit of any ASR, ``exit`` that ASR's), ``done`` or ``wait``
+    (no ASR yet).
     For exits: ``target`` is the staging point inside, ``through`` the point beyond the exit.
     """
 
@@ -78,6 +80,7 @@ class Goal:
 
     @property
     def key(self) -> tuple:
+        """What makes two goals the same goal (kind, ASR, exit, place looked at)."""
         return (self.kind, self.asr, self.exit, self.look_at)
 
 
