@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import queue
 import threading
@@ -22,6 +23,7 @@ from typing import Any
 import zenoh
 
 from service.bus import PREFIX, client_config, open_session
+from service.render import render_svg, robot_pose
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +38,8 @@ class Update:
     kind: str
     robot: str
     data: dict[str, Any] = field(default_factory=dict)
+    #: With a status: the robot's latest pose (``asrmap/pose/1``), None before the first.
+    pose: dict[str, Any] | None = None
 
 
 @dataclass
@@ -166,7 +170,7 @@ class Monitor:
         elif kind == "pose":
             view.pose = data
             view.changed = True
-            return []  # ~10 Hz: kept for pictures, not printed
+            return []  # ~10 Hz: drawn in the pictures and shown with the next status line
         elif kind == "asr":
             if not isinstance(data.get("id"), int):
                 self._bad(robot, kind, "an ASR without an integer id")
@@ -177,7 +181,7 @@ class Monitor:
                 view.doc["asrs"] = sorted([*asrs, data], key=lambda a: a["id"])
                 view.changed = True
             return []  # printed as the events asr_created/asr_updated describe them
-        out = [Update(kind, robot, data)]
+        out = [Update(kind, robot, data, pose=view.pose if kind == "status" else None)]
         if kind == "event" and data.get("event") in _REFETCH:
             out += self._refresh(view)
         return out
@@ -229,7 +233,17 @@ def _table(v: Any) -> dict[str, Any]:
     return v if isinstance(v, dict) else {}
 
 
-def status_line(st: dict[str, Any]) -> str:
+def _where(pose: dict[str, Any] | None) -> str | None:
+    """``at ASR 7 (5.12, 3.20 m, 45°)``: the robot's ASR and global pose (m, degrees, global frame)
+    from an ``asrmap/pose/1`` body; None when there is none or it is malformed."""
+    asr, g = robot_pose(pose)
+    if g is None:
+        return None
+    return f"at ASR {asr} ({g[0]:.2f}, {g[1]:.2f} m, {math.degrees(g[2]):.0f}°)"
+
+
+def status_line(st: dict[str, Any], pose: dict[str, Any] | None = None) -> str:
+    """One line of a status (``asrmap/status/1``), with the robot's latest ``pose`` when given."""
     parts = []
     for dev in ("pioneer", "laser"):
         d = _table(st.get(dev))
@@ -268,6 +282,9 @@ def status_line(st: dict[str, Any]) -> str:
         ago = (f" {max(0.0, now - then):.0f} s ago" if isinstance(now, int | float)
                and isinstance(then, int | float) else "")
         parts.append(f"last stop{ago}: {stop['reason']}")
+    where = _where(pose)
+    if where:
+        parts.append(where)
     parts += [f"ALERT {a}" for a in motors.get("alerts") or ()]
     return " ".join(parts)
 
@@ -280,7 +297,7 @@ def format_update(u: Update) -> str:
         return f"{u.robot}  map: {map_summary(u.data)}"
     if u.kind == "status":
         try:
-            return f"{u.robot}  status {status_line(u.data)}"
+            return f"{u.robot}  status {status_line(u.data, u.pose)}"
         except (TypeError, ValueError, KeyError) as exc:  # a field of another type (another version)
             return f"{u.robot}  status (unreadable: {type(exc).__name__}: {exc})"
     fields = " ".join(f"{k}={_fmt(v)}" for k, v in u.data.items() if k not in ("schema", "event"))
@@ -305,8 +322,6 @@ class SvgWriter:
 
     def update(self, mon: Monitor, now: float | None = None) -> list[Path]:
         """Write the pictures of the robots whose map changed; returns the files written."""
-        from service.render import render_svg
-
         now = time.monotonic() if now is None else now
         if now < self._due:
             return []
@@ -320,7 +335,7 @@ class SvgWriter:
             tmp = out.with_name(f".{out.name}.tmp")
             title = f"{view.name}: {map_summary(view.doc)}"
             try:
-                svg = render_svg(view.doc, title)
+                svg = render_svg(view.doc, title, robot=view.pose)
             except Exception as exc:  # a malformed ASR from the robot must not end the watching
                 log.warning("cannot draw %s's map (%s: %s); the picture is not updated", view.name,
                             type(exc).__name__, exc)

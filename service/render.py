@@ -9,6 +9,9 @@ Right: the global metric map, every ASR polygon in the global frame with its edg
 (surface black, exit green, unknown grey dashed), exits drawn thick, centres dotted, duplicates
 hatched. The y axis points up as in the map (SVG's points down).
 
+With a ``robot`` pose (an ``asrmap/pose/1`` body: ``asr``, ``global`` (x, y, theta: m, m, rad in
+the global frame)), the robot is drawn as an arrow on the metric map and its ASR's node ringed.
+
 ``render_svg(doc)`` returns the text; ``write_svg(path, doc)`` writes it.
 """
 
@@ -16,6 +19,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 from xml.sax.saxutils import escape
 
 import numpy as np
@@ -108,8 +112,21 @@ def _line(p, q, style: str, title: str | None = None) -> str:
     return f'<line x1="{p[0]:.1f}" y1="{p[1]:.1f}" x2="{q[0]:.1f}" y2="{q[1]:.1f}" {style}{body}'
 
 
-def render_svg(doc: dict, title: str | None = None) -> str:
-    """The SVG text of an ``asrmap/map/1`` document (see module docstring)."""
+def robot_pose(robot: Any) -> tuple[int | None, tuple[float, float, float] | None]:
+    """(ASR id, global pose) of an ``asrmap/pose/1`` body; None for what is missing or malformed
+    (a pose from another version is not drawn rather than failing the picture)."""
+    if not isinstance(robot, dict):
+        return None, None
+    asr = robot.get("asr") if isinstance(robot.get("asr"), int) else None
+    g = robot.get("global")
+    ok = (isinstance(g, list | tuple) and len(g) == 3
+          and all(isinstance(v, int | float) and math.isfinite(v) for v in g))
+    return asr, (float(g[0]), float(g[1]), float(g[2])) if ok else None
+
+
+def render_svg(doc: dict, title: str | None = None, robot: dict | None = None) -> str:
+    """The SVG text of an ``asrmap/map/1`` document, with the robot at ``robot`` (an
+    ``asrmap/pose/1`` body) when given (see module docstring)."""
     geo = _global(doc)
     pts = np.concatenate([g[0] for g in geo.values()]) if geo else np.zeros((0, 2))
     left, right = _View(pts, 0.0), _View(pts, PANEL)
@@ -157,6 +174,15 @@ def render_svg(doc: dict, title: str | None = None) -> str:
         ty = y + 11 if k in dups else y - 3
         o.append(f'<text x="{x + 3:.1f}" y="{ty:.1f}" font-size="9" fill="#333">{k}</text>')
 
+    robot_asr, robot_at = robot_pose(robot)
+    if robot_at is not None:
+        x, y, th = robot_at
+        tip = (x + 0.45 * math.cos(th), y + 0.45 * math.sin(th))
+        back = [(x + 0.25 * math.cos(th + a), y + 0.25 * math.sin(th + a)) for a in (2.4, -2.4)]
+        o.append(f'<polygon id="robot" points="{right.path([tip, back[0], back[1]])}" fill="#8e44ad"'
+                 f' stroke="#3b1a47" stroke-width="1"><title>robot at ({x:.2f}, {y:.2f}) m,'
+                 f' {math.degrees(th):.0f}° (global frame)</title></polygon>')
+
     # Topological map.
     node = _spread({k: left(c) for k, (_, c, _) in geo.items()})
     for ln in doc.get("links", []):
@@ -180,6 +206,9 @@ def render_svg(doc: dict, title: str | None = None) -> str:
     for k in geo:
         x, y = node[k]
         ring = 'stroke="#d08a2a" stroke-width="2.5"' if k in dups else 'stroke="#1f4e79" stroke-width="1.5"'
+        if k == robot_asr:  # the robot is here
+            o.append(f'<circle id="robot-asr" cx="{x:.1f}" cy="{y:.1f}" r="{NODE_RADIUS + 3:g}"'
+                     ' fill="none" stroke="#8e44ad" stroke-width="3"/>')
         o.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="{NODE_RADIUS:g}" fill="white" {ring}/>')
         o.append(f'<text x="{x:.1f}" y="{y + 3:.1f}" font-size="8" text-anchor="middle">{k}</text>')
 
@@ -191,18 +220,20 @@ def render_svg(doc: dict, title: str | None = None) -> str:
         ("#d08a2a", "duplicate ASR"),
         ("#555", "one-way link (dashed, arrow)"),
     ]
-    for i, (colour, text) in enumerate(legend):
-        x = 10 + i * 180
-        o.append(
-            f'<line x1="{x}" y1="{h - 14}" x2="{x + 20}" y2="{h - 14}" stroke="{colour}" stroke-width="3"/>'
-        )
-        o.append(f'<text x="{x + 25}" y="{h - 10}" font-size="11">{escape(text)}</text>')
+    if robot_at is not None or robot_asr is not None:
+        legend.append(("#8e44ad", "robot"))
+    x = 10.0
+    for colour, text in legend:  # each entry as wide as its text (about 6.2 px a character at 11 px)
+        o.append(f'<line x1="{x:.0f}" y1="{h - 14}" x2="{x + 20:.0f}" y2="{h - 14}" stroke="{colour}"'
+                 ' stroke-width="3"/>')
+        o.append(f'<text x="{x + 25:.0f}" y="{h - 10}" font-size="11">{escape(text)}</text>')
+        x += 25 + 6.2 * len(text) + 30
     o.append("</svg>")
     return "\n".join(o) + "\n"
 
 
-def write_svg(path: str | Path, doc: dict, title: str | None = None) -> Path:
-    """Write :func:`render_svg` of ``doc`` to ``path``; returns the path."""
+def write_svg(path: str | Path, doc: dict, title: str | None = None, robot: dict | None = None) -> Path:
+    """Write :func:`render_svg` of ``doc`` (and ``robot``) to ``path``; returns the path."""
     p = Path(path)
-    write_output(p, render_svg(doc, title))
+    write_output(p, render_svg(doc, title, robot))
     return p

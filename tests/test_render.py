@@ -100,3 +100,19 @@ def test_topological_nodes_do_not_cover_each_other_and_lone_nodes_keep_their_pla
     pts = list(cluster.values())
     gaps = [math.hypot(p[0] - q[0], p[1] - q[1]) for i, p in enumerate(pts) for q in pts[:i]]
     assert min(gaps) >= NODE_GAP - 1e-6
+
+
+def test_the_robot_is_drawn_at_its_global_pose_and_its_asr_ringed_and_a_bad_pose_is_left_out():
+    doc = _doc()
+    a = doc["asrs"][-1]
+    root = ET.fromstring(render_svg(doc, robot={"asr": a["id"], "global": [0.0, 0.0, 0.5]}).encode())
+    arrow = root.find("svg:polygon[@id='robot']", NS)
+    assert arrow is not None and "(0.00, 0.00) m, 29°" in arrow.find("svg:title", NS).text
+    ring = root.find("svg:circle[@id='robot-asr']", NS)
+    label = next(t for t in root.findall("svg:text", NS)  # the node's number sits in its ring
+                 if t.text == str(a["id"]) and t.get("text-anchor") == "middle")
+    assert abs(float(ring.get("cx")) - float(label.get("x"))) < 1e-6
+    for bad in ("junk", {"asr": "x", "global": [1, 2]}, {"global": [float("inf"), 0, 0]}):
+        root = ET.fromstring(render_svg(doc, robot=bad).encode())
+        assert root.find("svg:polygon[@id='robot']", NS) is None
+        assert root.find("svg:circle[@id='robot-asr']", NS) is None

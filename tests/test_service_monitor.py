@@ -186,3 +186,32 @@ def test_payloads_that_are_not_what_their_key_promises_are_skipped_counted_and_s
     assert "rogue  recovered " in lines and any("status (unreadable" in line for line in lines)
     assert mon.bad_payloads == 5  # the map answer, status, pose, the schema-less event, the id-less ASR
     assert "cannot draw rogue's map" in caplog.text
+
+
+def test_status_line_says_where_the_robot_is_from_its_latest_pose():
+    pose = {"t": 3.0, "asr": 7, "pose": [1.0, 0.5, 0.0], "global": [5.123, -3.2, 1.5708], "odometry": None}
+    st = {"pioneer": {"link": "ok"}, "laser": {"link": "ok"}}
+    assert status_line(st, pose) == "pioneer=ok laser=ok dropped_scans=0 at ASR 7 (5.12, -3.20 m, 90°)"
+    for bad in (None, [], {"asr": 7}, {"asr": 7, "global": [1.0, "x", 0.0]},
+                {"asr": 7, "global": [float("nan"), 0.0, 0.0]}):
+        assert status_line(st, bad) == "pioneer=ok laser=ok dropped_scans=0"
+
+
+def test_a_live_status_carries_the_latest_pose_and_the_picture_shows_the_robot(tmp_path):
+    import xml.etree.ElementTree as ET
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    pose = {"t": 3.0, "asr": 2, "pose": [0.2, 0.1, 0.0], "global": [1.5, 0.5, 0.0], "odometry": [0, 0, 0]}
+    with _bus(ep) as bus, Monitor([ep], "r1") as mon:
+        _until(mon, lambda s: any(u.kind == "map" for u in s))
+        bus.publish_pose(pose)
+        _until(mon, lambda s: mon.robots["r1"].pose is not None)
+        bus.publish_status({"pioneer": {"link": "ok"}, "laser": {"link": "ok"}})
+        seen = _until(mon, lambda s: any(u.kind == "status" for u in s))
+        line = format_update(next(u for u in seen if u.kind == "status"))
+        assert line.endswith("at ASR 2 (1.50, 0.50 m, 0°)"), line
+        written = SvgWriter(str(tmp_path / "{robot}.svg"), period=0.0).update(mon)
+    root = ET.parse(written[0]).getroot()
+    ns = {"svg": "http://www.w3.org/2000/svg"}
+    assert root.find("svg:polygon[@id='robot']", ns) is not None
+    assert root.find("svg:circle[@id='robot-asr']", ns) is not None

@@ -106,7 +106,8 @@ def run(args) -> int:
         except ImportError:
             print("no picture: service.render is not available", file=sys.stderr)
         else:
-            write_svg(args.svg, doc, title=f"asrmap simulate --world {world.name}")
+            write_svg(args.svg, doc, title=f"asrmap simulate --world {world.name}",
+                      robot=getattr(sim, "final_pose", None))
             print(f"picture: {args.svg}")
     for line in summary.lines():
         print(line)

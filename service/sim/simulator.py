@@ -372,7 +372,9 @@ def map_document(mapper: Any, robot_name: str = "pioneer") -> dict:
 
 class DirectSim:
     """The robot, the mapper and the explorer stepped in turn on a simulated clock (see the module
-    docstring). ``progress(sim_time, explorer_status, mapper)`` is called about once a simulated second."""
+    docstring). ``progress(sim_time, explorer_status, mapper)`` is called about once a simulated second.
+    After :meth:`run`: ``document`` (the map, ``asrmap/map/1``) and ``final_pose`` (``asr`` and
+    ``global``: the robot's last pose, m, m, rad in the global frame; None before the first ASR)."""
 
     def __init__(self, world: World, params: SimParams | None = None, mapper: Any = None,
                  progress: Callable[[float, str, Any], None] | None = None) -> None:
@@ -434,6 +436,8 @@ class DirectSim:
                       self.t, time.perf_counter() - wall0, finished, self.mapper.crossings)
         s.scans = self.scans
         self.document = doc
+        m = self.mapper.mapper
+        self.final_pose = None if m.current is None else {"asr": m.current, "global": list(m.global_pose)}
         return s
 
 
@@ -520,6 +524,8 @@ class StackSim:
     store (a temporary directory by default; a simulation always starts a new map). Zenoh: the
     service's default ``[zenoh]`` configuration (or ``listen``: the endpoints to listen on), keys
     under ``asrmap/<robot_name>/``, so ``asrmap monitor --robot <robot_name>`` follows the run.
+    After :meth:`run`: ``document`` and ``final_pose`` (the last ``asrmap/pose/1`` the service
+    published), as :class:`DirectSim` has them.
     """
 
     def __init__(self, world: World, params: SimParams | None = None, *, speed: float = 1.0,
@@ -630,6 +636,7 @@ class StackSim:
             s.scans = w.counters.get("scans_mapped", 0)
         s.scans_dropped = getattr(service.scans, "dropped", 0)
         self.document = doc
+        self.final_pose = w.last_pose if w is not None else None
         return s
 
     def _drive(self, service, stop: threading.Event, limit: float, odometry: Track) -> bool:
