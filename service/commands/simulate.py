@@ -6,7 +6,6 @@ import argparse
 import json
 import os
 import signal
-import sys
 import threading
 from dataclasses import replace
 
@@ -20,6 +19,7 @@ from service.argtypes import (
     speed_factor,
     write_output,
 )
+from service.render import write_svg
 from service.sim.simulator import DirectSim, SimParams, StackSim
 from service.sim.world import builtin_worlds, load_world
 
@@ -101,14 +101,8 @@ def run(args) -> int:
         write_output(args.json, json.dumps(doc, indent=1) + "\n")
         print(f"map document: {args.json}")
     if args.svg:
-        try:
-            from service.render import write_svg
-        except ImportError:
-            print("no picture: service.render is not available", file=sys.stderr)
-        else:
-            write_svg(args.svg, doc, title=f"asrmap simulate --world {world.name}",
-                      robot=getattr(sim, "final_pose", None))
-            print(f"picture: {args.svg}")
+        write_svg(args.svg, doc, title=f"asrmap simulate --world {world.name}", robot=sim.final_pose)
+        print(f"picture: {args.svg}")
     for line in summary.lines():
         print(line)
     return 0

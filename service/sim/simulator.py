@@ -384,6 +384,7 @@ class DirectSim:
         self.robot = SimRobot(world, self.p, lambda: self.t)
         self.robot.drive.motors_enabled = True
         self.mapper = LockedMapper(mapper if mapper is not None else new_mapper())
+        self.final_pose: dict[str, Any] | None = None
         self.explorer = Explorer(self.p.explore_params) if self.p.explore else None
         self.odometry = Track()
         self.progress = progress
@@ -534,6 +535,7 @@ class StackSim:
                  listen: tuple[str, ...] | None = None) -> None:
         self.world = world
         self.listen = listen
+        self.final_pose: dict[str, Any] | None = None
         self.p = params or SimParams()
         self.speed = float(speed)
         self.robot_name = robot_name
