@@ -89,24 +89,58 @@ def asr_from_dict(d: dict[str, Any]) -> ASR:
     origin = _point(_need(d, "origin", where), f"{where}: origin", "[x, y, theta] (m, m, rad)", 3)
     centre = _point(_need(d, "centre", where), f"{where}: centre", "[x, y] in metres")
     exits = []
-    for k, e in enumerate(d.get("exits", [])):
+    for k, e in enumerate(_list(d, "exits", where)):
         at = f"{where}: exits[{k}]"
         if not isinstance(e, dict):
             raise DocumentError(f"{at}: expected an object, found {type(e).__name__}")
         a, b = (_point(_need(e, key, at), f"{at}.{key}", "[x, y] in metres") for key in "ab")
-        exits.append(Exit(str(_need(e, "id", at)), a, b, e.get("to")))
+        to = _int(e.get("to"), f"{at}.to", none=True)
+        exits.append(Exit(_str(_need(e, "id", at), f"{at}.id"), a, b, to))
     return ASR(
-        id=int(_need(d, "id", where)),
-        created=float(_need(d, "created", where)),
+        id=_int(_need(d, "id", where), f"{where}: id"),
+        created=_float(_need(d, "created", where), f"{where}: created"),
         origin=origin,
         boundary=boundary,
         edges=edges,
         centre=centre,
         centre_rule=_centre_rule(boundary, centre),
         exits=exits,
-        duplicate_of=d.get("duplicate_of"),
-        scans=int(d.get("scans", 0)),
+        duplicate_of=_int(d.get("duplicate_of"), f"{where}: duplicate_of", none=True),
+        scans=_int(d.get("scans", 0), f"{where}: scans"),
     )
+
+
+def _int(value: Any, what: str, none: bool = False) -> int | None:
+    """``value`` as an int (an integral float too; never a bool or a string), or None when ``none``
+    allows it; else :class:`DocumentError` naming ``what``."""
+    if value is None and none:
+        return None
+    ok = isinstance(value, int) and not isinstance(value, bool)
+    if not ok and not (isinstance(value, float) and value.is_integer()):
+        raise DocumentError(f"{what}: expected an integer{' or null' if none else ''}, found {value!r}")
+    return int(value)
+
+
+def _float(value: Any, what: str) -> float:
+    """``value`` as a finite float (from an int or a float, not a bool); else :class:`DocumentError`."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
+        raise DocumentError(f"{what}: expected a finite number, found {value!r}")
+    return float(value)
+
+
+def _str(value: Any, what: str, none: bool = False) -> str | None:
+    """``value`` when it is a string (or None when ``none`` allows it); else :class:`DocumentError`."""
+    if value is None and none:
+        return None
+    if not isinstance(value, str):
+        raise DocumentError(f"{what}: expected a string{' or null' if none else ''}, found {value!r}")
+    return value
+
+
+def _bool(value: Any, what: str) -> bool:
+    if not isinstance(value, bool):
+        raise DocumentError(f"{what}: expected true or false, found {value!r}")
+    return value
 
 
 def _numbers(value: Any, what: str, expected: str, width: int) -> np.ndarray:
@@ -157,6 +191,12 @@ def from_document(doc: dict[str, Any]) -> MapDocument:
         raise DocumentError(f"not a map document: schema {got!r}, expected {SCHEMA!r}")
     asrs = [_record(f"asrs[{i}]", asr_from_dict, a) for i, a in enumerate(_list(doc, "asrs"))]
     ids = {a.id for a in asrs}
+    if len(ids) != len(asrs):
+        raise DocumentError("asrs: two ASRs with one id")
+    for a in asrs:
+        if a.duplicate_of is not None and a.duplicate_of not in ids:
+            raise DocumentError(f"asr {a.id}: duplicate_of {a.duplicate_of} names an ASR the document "
+                                "does not hold")
     links = [_record(f"links[{i}]", _link_from_dict, ln) for i, ln in enumerate(_list(doc, "links"))]
     for ln in links:
         if ln.src not in ids or ln.dst not in ids:
@@ -165,10 +205,11 @@ def from_document(doc: dict[str, Any]) -> MapDocument:
     return MapDocument(str(doc.get("robot", "pioneer")), asrs, links, cycles)
 
 
-def _list(doc: dict[str, Any], key: str) -> list:
+def _list(doc: dict[str, Any], key: str, where: str = "") -> list:
     v = doc.get(key, [])
     if not isinstance(v, list):
-        raise DocumentError(f"{key}: expected a list, found {type(v).__name__}")
+        at = f"{where}: {key}" if where else key
+        raise DocumentError(f"{at}: expected a list, found {type(v).__name__}")
     return v
 
 
@@ -178,7 +219,7 @@ def _record(where: str, parse, d: Any):
     if not isinstance(d, dict):
         raise DocumentError(f"{where}: expected an object, found {type(d).__name__}")
     try:
-        return parse(d)
+        return parse(d) if parse is asr_from_dict else parse(d, where)  # an ASR names itself by id
     except DocumentError:
         raise
     except KeyError as exc:
@@ -187,14 +228,17 @@ def _record(where: str, parse, d: Any):
         raise DocumentError(f"{where}: {exc}") from None
 
 
-def _link_from_dict(ln: dict[str, Any]) -> Link:
-    exit_id = None if ln["exit"] is None else str(ln["exit"])  # a duplicate entered by an unseen exit
-    return Link(int(ln["from"]), exit_id, int(ln["to"]), ln.get("via"), bool(ln.get("oneway", False)))
+def _link_from_dict(ln: dict[str, Any], at: str) -> Link:
+    # "exit" may be null: a duplicate entered by an exit no view showed.
+    return Link(_int(ln["from"], f"{at}.from"), _str(ln["exit"], f"{at}.exit", none=True),
+                _int(ln["to"], f"{at}.to"), _str(ln.get("via"), f"{at}.via", none=True),
+                _bool(ln.get("oneway", False), f"{at}.oneway"))
 
 
-def _cycle_from_dict(c: dict[str, Any]) -> CycleRecord:
-    return CycleRecord(float(c["time"]), int(c["asr"]), int(c["matches"]), bool(c["accepted"]),
-                       float(c["iou"]), str(c["reason"]))
+def _cycle_from_dict(c: dict[str, Any], at: str) -> CycleRecord:
+    return CycleRecord(_float(c["time"], f"{at}.time"), _int(c["asr"], f"{at}.asr"),
+                       _int(c["matches"], f"{at}.matches"), _bool(c["accepted"], f"{at}.accepted"),
+                       _float(c["iou"], f"{at}.iou"), _str(c["reason"], f"{at}.reason"))
 
 
 def document_of(gm: GlobalMap, robot: str = "pioneer") -> dict[str, Any]:

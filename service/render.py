@@ -102,7 +102,7 @@ def _cycle_links(doc: dict) -> set[tuple[int, int]]:
     dup = {a["id"]: a["duplicate_of"] for a in doc.get("asrs", []) if a.get("duplicate_of") is not None}
     out = set()
     for ln in doc.get("links", []):
-        if ln["oneway"] and ln["from"] in dup:
+        if ln.get("oneway", False) and ln["from"] in dup:
             out.add((ln["to"], dup[ln["from"]]))
     return out
 
@@ -189,7 +189,7 @@ def render_svg(doc: dict, title: str | None = None, robot: dict | None = None) -
         if ln["from"] not in geo or ln["to"] not in geo:
             continue
         (x1, y1), (x2, y2) = node[ln["from"]], node[ln["to"]]
-        if ln["oneway"]:
+        if ln.get("oneway", False):  # optional in the document: two-way
             # Stop short of the node so the arrow head shows.
             d = math.hypot(x2 - x1, y2 - y1) or 1.0
             x2, y2 = x2 - 9 * (x2 - x1) / d, y2 - 9 * (y2 - y1) / d

@@ -6,6 +6,8 @@ import re
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from mapper.cycle_params import CycleParams
 from mapper.document import DocumentError, document_of, from_document, load_globalmap, to_document
@@ -95,7 +97,14 @@ def test_a_document_of_another_schema_is_refused_with_a_reason():
     (lambda d: d["asrs"][0]["exits"][0].pop("b"), "asr 1: exits[0]: missing field 'b'"),
     (lambda d: d["asrs"][0]["exits"].__setitem__(0, None), "asr 1: exits[0]: expected an object"),
     (lambda d: d["links"][0].pop("exit"), "links[0]: missing field 'exit'"),
-    (lambda d: d["links"][0].update({"from": None}), "links[0]: int() argument must be"),
+    (lambda d: d["links"][0].update({"from": None}), "links[0].from: expected an integer, found None"),
+    (lambda d: d["links"][0].update(oneway="false"), "links[0].oneway: expected true or false"),
+    (lambda d: d["asrs"][1].update(duplicate_of=[]), "asr 2: duplicate_of: expected an integer or null"),
+    (lambda d: d["asrs"][1].update(duplicate_of=99), "asr 2: duplicate_of 99 names an ASR"),
+    (lambda d: d["asrs"][1].update(id=1), "asrs: two ASRs with one id"),
+    (lambda d: d["asrs"][0]["exits"][0].update(to="2"), "asr 1: exits[0].to: expected an integer or null"),
+    (lambda d: d["cycles"].append({"time": 1.0, "asr": 2, "matches": 1, "accepted": 1, "iou": 0.5,
+                                   "reason": "x"}), ".accepted: expected true or false"),
     (lambda d: d["cycles"].insert(0, 3), "cycles[0]: expected an object, found int"),
 ])
 def test_a_damaged_document_is_one_document_error_naming_the_record(damage, message):
@@ -111,3 +120,48 @@ def test_a_one_way_link_without_a_known_exit_round_trips():
     doc["links"].append({"from": 5, "exit": None, "to": 4, "via": None, "oneway": True})
     md = from_document(json.loads(json.dumps(doc)))
     assert to_document(md.asrs, md.links, md.cycles, md.robot) == doc
+
+
+def _paths(node, path=()):
+    """Every place in a JSON tree: (path, value)."""
+    yield path, node
+    if isinstance(node, dict):
+        for k, v in node.items():
+            yield from _paths(v, (*path, k))
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            yield from _paths(v, (*path, i))
+
+
+_JSON = st.recursive(
+    st.none() | st.booleans() | st.integers(-10**6, 10**6) | st.floats(allow_nan=True) | st.text(max_size=5),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=5), inner, max_size=4),
+    max_leaves=8)
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_any_damage_to_a_document_is_a_document_error_or_a_map_that_draws(data):
+    """What ``asrmap render`` and ``asrmap run`` (restoring a store) read from a file: one place
+    replaced by any JSON value, or a key dropped. Either :class:`DocumentError` names it, or the
+    document loads and its picture draws."""
+    from service.render import render_svg
+
+    doc = json.loads(json.dumps(_FUZZ_BASE))
+    places = [p for p, _ in _paths(doc) if p]
+    path = data.draw(st.sampled_from(places))
+    parent = doc
+    for k in path[:-1]:
+        parent = parent[k]
+    if isinstance(parent, dict) and data.draw(st.booleans()):
+        del parent[path[-1]]
+    else:
+        parent[path[-1]] = data.draw(_JSON)
+    try:
+        from_document(doc)
+    except DocumentError:
+        return
+    render_svg(doc)
+
+
+_FUZZ_BASE = document_of(_loop_map())
