@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from service.sim.world import WorldError, builtin_worlds, load_world, parse_world
+
+BUILTIN_DIR = Path(__file__).resolve().parent.parent / "service" / "sim" / "worlds"
 
 
 def wall(*doors):
@@ -91,3 +96,47 @@ def test_not_json_names_line_and_column(tmp_path):
     f.write_text('{"schema": "asrmap/world/1",\n "start": [1, 1, 0,]}')
     with pytest.raises(WorldError, match=r"w.json: not JSON: .* line 2"):
         load_world(f)
+
+
+def _places(node, path=()):
+    """Every place in a JSON tree: (path, value)."""
+    yield path, node
+    if isinstance(node, dict):
+        for k, v in node.items():
+            yield from _places(v, (*path, k))
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            yield from _places(v, (*path, i))
+
+
+_JSON = st.recursive(
+    st.none() | st.booleans() | st.integers(-100, 100) | st.floats(-1e6, 1e6) | st.floats(allow_nan=True)
+    | st.text(max_size=5),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=5), inner, max_size=4),
+    max_leaves=8)
+
+
+@settings(max_examples=200, deadline=None)
+@given(name=st.sampled_from(["lab", "office", "aliasing"]), data=st.data())
+def test_any_damage_to_a_world_file_is_a_world_error_or_a_world_the_laser_sees(name, data):
+    """What ``--world FILE`` reads: one place of a built-in world replaced by any JSON value, or a
+    key dropped. Either :class:`WorldError` names it, or the world loads and a scan from its start
+    pose is ranges of a real LMS (finite, 0 to max range)."""
+    from service.sim.raycast import RayCaster
+
+    doc = json.loads((BUILTIN_DIR / f"{name}.json").read_text())
+    path = data.draw(st.sampled_from([p for p, _ in _places(doc) if p]))
+    parent = doc
+    for k in path[:-1]:
+        parent = parent[k]
+    if isinstance(parent, dict) and data.draw(st.booleans()):
+        del parent[path[-1]]
+    else:
+        parent[path[-1]] = data.draw(_JSON)
+    try:
+        world = parse_world(doc, source=f"{name}.json")
+    except WorldError:
+        return
+    caster = RayCaster(world)
+    ranges = caster.scan(world.start, np.radians(np.arange(-90.0, 90.5, 1.0)))
+    assert np.isfinite(ranges).all() and (ranges >= 0).all() and (ranges <= caster.max_range).all()
