@@ -17,6 +17,7 @@ import math
 import os
 import re
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -291,15 +292,10 @@ def _mapper_fields() -> dict[str, Any] | None:
     return {f.name: getattr(cls(), f.name) for f in dataclasses.fields(cls)}
 
 
-# The laser's mounting offsets may be negative; every other MapperParams number is a size (m), an
-# angle (rad), a count, a noise figure or a threshold, which is meaningless at or below zero.
-_SIGNED_MAPPER_FIELDS = frozenset({"laser_x", "laser_y", "laser_theta"})
-
-
 def _check_fields(prefix: str, table: dict, known: dict[str, Any] | None, what: str, problems: list[str],
-                  strictly_positive: bool) -> list[tuple[str, Any]]:
+                  limits: Callable[[str], tuple[float, float]] | None = None) -> list[tuple[str, Any]]:
     """Overrides of a parameters dataclass (``known``: its defaults by field name), each checked
-    against its default's type; numbers must be > 0 (``strictly_positive``) or >= 0."""
+    against its default's type; numbers must lie within ``limits(name)`` (closed), else be >= 0."""
     out = []
     for name, v in table.items():
         if known is not None and name not in known:
@@ -315,9 +311,13 @@ def _check_fields(prefix: str, table: dict, known: dict[str, Any] | None, what: 
             if isinstance(default, int) and not isinstance(v, int):
                 ok = False
             expected = "an integer" if isinstance(default, int) else "a number"
-            if name not in _SIGNED_MAPPER_FIELDS:
-                ok = ok and (v > 0 if strictly_positive else v >= 0)
-                expected += " > 0" if strictly_positive else " >= 0"
+            if limits is not None:
+                lo, hi = limits(name)
+                ok = ok and lo <= v <= hi
+                expected += f" from {lo:g} to {hi:g}"
+            else:
+                ok = ok and v >= 0
+                expected += " >= 0"
             v = float(v) if ok and isinstance(default, float) else v
         elif isinstance(default, str):
             ok, expected = isinstance(v, str), "a string"
@@ -334,7 +334,9 @@ def _check_mapper(table: dict, problems: list[str]) -> tuple[tuple[str, Any], ..
     known = _mapper_fields()
     cycles = table.get("cycles")
     rest = {k: v for k, v in table.items() if k != "cycles" or known is None}
-    out = _check_fields("mapper", rest, known, "MapperParams", problems, strictly_positive=True)
+    from mapper.params import limits
+
+    out = _check_fields("mapper", rest, known, "MapperParams", problems, limits=limits)
     if cycles is not None and known is not None:
         if not isinstance(cycles, dict):
             problems.append(f"mapper.cycles: expected a table [mapper.cycles] of CycleParams fields; "
@@ -346,7 +348,7 @@ def _check_mapper(table: dict, problems: list[str]) -> tuple[tuple[str, Any], ..
             fields["paper"] = False  # start from CycleParams.paper(): the paper's method alone
             # 0 is meaningful here (a margin or a search radius of 0 is the paper's test)
             out.append(("cycles", tuple(_check_fields("mapper.cycles", cycles, fields, "CycleParams",
-                                                      problems, strictly_positive=False))))
+                                                      problems))))
     return tuple(out)
 
 

@@ -111,14 +111,21 @@ def test_mapper_overrides_are_validated_against_mapper_params():
     lines = str(e.value).splitlines()
     assert lines[0].startswith("f.toml: mapper.pasage_width: expected a MapperParams field (")
     assert lines[0].endswith("found an unknown key") and "passage_width" in lines[0]
-    assert lines[1] == 'f.toml: mapper.laser_x: expected a number; found "near"'
+    assert lines[1] == 'f.toml: mapper.laser_x: expected a number from -2 to 2; found "near"'
 
 
-def test_mapper_sizes_must_be_positive_but_the_laser_offsets_may_be_negative():
+def test_mapper_numbers_lie_within_a_thousand_times_their_default_and_the_laser_within_2_m():
+    """Beyond those ranges a value is a typing mistake, and some exhaust the robot's memory (a
+    1e-9 m translation bin, a laser mounted 1e9 m away: MemoryError in the mapper thread)."""
     with pytest.raises(ConfigError) as e:
-        parse({"mapper": {"passage_width": -0.6, "max_viewpoints": 0}}, "f.toml")
-    assert str(e.value).splitlines() == ["f.toml: mapper.passage_width: expected a number > 0; found -0.6",
-                                         "f.toml: mapper.max_viewpoints: expected an integer > 0; found 0"]
+        parse({"mapper": {"passage_width": -0.6, "max_viewpoints": 0, "xy_bin": 1e-9, "angle_bin": 10.0,
+                          "laser_x": 1e9}}, "f.toml")
+    assert str(e.value).splitlines() == [
+        "f.toml: mapper.passage_width: expected a number from 0.0006 to 600; found -0.6",
+        "f.toml: mapper.max_viewpoints: expected an integer from 1 to 200000; found 0",
+        "f.toml: mapper.xy_bin: expected a number from 0.005 to 0.5; found 1e-09",
+        "f.toml: mapper.angle_bin: expected a number from 0.00174533 to 0.174533; found 10.0",
+        "f.toml: mapper.laser_x: expected a number from -2 to 2; found 1000000000.0"]
     assert parse({"mapper": {"laser_x": -0.1, "laser_theta": -0.05}}).mapper_params().laser_x == -0.1
 
 
