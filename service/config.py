@@ -295,7 +295,7 @@ def _mapper_fields() -> dict[str, Any] | None:
 def _check_fields(prefix: str, table: dict, known: dict[str, Any] | None, what: str, problems: list[str],
                   limits: Callable[[str], tuple[float, float]] | None = None) -> list[tuple[str, Any]]:
     """Overrides of a parameters dataclass (``known``: its defaults by field name), each checked
-    against its default's type; numbers must lie within ``limits(name)`` (closed), else be >= 0."""
+    against its default's type; numbers must lie within ``limits(name)`` (closed)."""
     out = []
     for name, v in table.items():
         if known is not None and name not in known:
@@ -315,9 +315,6 @@ def _check_fields(prefix: str, table: dict, known: dict[str, Any] | None, what: 
                 lo, hi = limits(name)
                 ok = ok and lo <= v <= hi
                 expected += f" from {lo:g} to {hi:g}"
-            else:
-                ok = ok and v >= 0
-                expected += " >= 0"
             v = float(v) if ok and isinstance(default, float) else v
         elif isinstance(default, str):
             ok, expected = isinstance(v, str), "a string"
@@ -346,9 +343,11 @@ def _check_mapper(table: dict, problems: list[str]) -> tuple[tuple[str, Any], ..
 
             fields = {f.name: getattr(CycleParams(), f.name) for f in dataclasses.fields(CycleParams)}
             fields["paper"] = False  # start from CycleParams.paper(): the paper's method alone
-            # 0 is meaningful here (a margin or a search radius of 0 is the paper's test)
+            # 0 is meaningful for most (a margin or a search radius of 0 is the paper's test)
+            from mapper.cycle_params import limits as cycle_limits
+
             out.append(("cycles", tuple(_check_fields("mapper.cycles", cycles, fields, "CycleParams",
-                                                      problems))))
+                                                      problems, limits=cycle_limits))))
     return tuple(out)
 
 

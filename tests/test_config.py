@@ -139,7 +139,10 @@ def test_cycle_closing_is_configured_in_a_mapper_cycles_table(tmp_path):
         parse({"mapper": {"cycles": {"verfy": True, "search_radius": -1}}}, "f.toml")
     lines = str(e.value).splitlines()
     assert lines[0].startswith("f.toml: mapper.cycles.verfy: expected a CycleParams field (")
-    assert lines[1] == "f.toml: mapper.cycles.search_radius: expected a number >= 0; found -1"
+    assert lines[1] == "f.toml: mapper.cycles.search_radius: expected a number from 0 to 2000; found -1"
+    with pytest.raises(ConfigError, match=r"mapper.cycles.loop_sigma_xy: expected a number from "
+                                          r"0.0001 to 100; found 0\b"):
+        parse({"mapper": {"cycles": {"loop_sigma_xy": 0}}}, "f.toml")  # divided by in the pose graph
 
 
 def test_an_integer_is_accepted_for_a_float_parameter():
