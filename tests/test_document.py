@@ -13,6 +13,7 @@ from mapper.cycle_params import CycleParams
 from mapper.document import DocumentError, document_of, from_document, load_globalmap, to_document
 from mapper.events import CycleDetected
 from mapper.globalmap import GlobalMap
+from tests.json_damage import damage
 from tests.synthetic_asrs import box_asr, drive
 from tests.test_cycles import LOOP
 
@@ -122,21 +123,8 @@ def test_a_one_way_link_without_a_known_exit_round_trips():
     assert to_document(md.asrs, md.links, md.cycles, md.robot) == doc
 
 
-def _paths(node, path=()):
-    """Every place in a JSON tree: (path, value)."""
-    yield path, node
-    if isinstance(node, dict):
-        for k, v in node.items():
-            yield from _paths(v, (*path, k))
-    elif isinstance(node, list):
-        for i, v in enumerate(node):
-            yield from _paths(v, (*path, i))
 
-
-_JSON = st.recursive(
-    st.none() | st.booleans() | st.integers(-10**6, 10**6) | st.floats(allow_nan=True) | st.text(max_size=5),
-    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=5), inner, max_size=4),
-    max_leaves=8)
+_FUZZ_BASE = document_of(_loop_map())
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -148,20 +136,9 @@ def test_any_damage_to_a_document_is_a_document_error_or_a_map_that_draws(data):
     from service.render import render_svg
 
     doc = json.loads(json.dumps(_FUZZ_BASE))
-    places = [p for p, _ in _paths(doc) if p]
-    path = data.draw(st.sampled_from(places))
-    parent = doc
-    for k in path[:-1]:
-        parent = parent[k]
-    if isinstance(parent, dict) and data.draw(st.booleans()):
-        del parent[path[-1]]
-    else:
-        parent[path[-1]] = data.draw(_JSON)
+    damage(doc, data)
     try:
         from_document(doc)
     except DocumentError:
         return
     render_svg(doc)
-
-
-_FUZZ_BASE = document_of(_loop_map())

@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from service.sim.world import WorldError, builtin_worlds, load_world, parse_world
+from tests.json_damage import damage
 
 BUILTIN_DIR = Path(__file__).resolve().parent.parent / "service" / "sim" / "worlds"
 
@@ -98,23 +99,6 @@ def test_not_json_names_line_and_column(tmp_path):
         load_world(f)
 
 
-def _places(node, path=()):
-    """Every place in a JSON tree: (path, value)."""
-    yield path, node
-    if isinstance(node, dict):
-        for k, v in node.items():
-            yield from _places(v, (*path, k))
-    elif isinstance(node, list):
-        for i, v in enumerate(node):
-            yield from _places(v, (*path, i))
-
-
-_JSON = st.recursive(
-    st.none() | st.booleans() | st.integers(-100, 100) | st.floats(-1e6, 1e6) | st.floats(allow_nan=True)
-    | st.text(max_size=5),
-    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=5), inner, max_size=4),
-    max_leaves=8)
-
 
 @settings(max_examples=200, deadline=None)
 @given(name=st.sampled_from(["lab", "office", "aliasing"]), data=st.data())
@@ -125,14 +109,7 @@ def test_any_damage_to_a_world_file_is_a_world_error_or_a_world_the_laser_sees(n
     from service.sim.raycast import RayCaster
 
     doc = json.loads((BUILTIN_DIR / f"{name}.json").read_text())
-    path = data.draw(st.sampled_from([p for p, _ in _places(doc) if p]))
-    parent = doc
-    for k in path[:-1]:
-        parent = parent[k]
-    if isinstance(parent, dict) and data.draw(st.booleans()):
-        del parent[path[-1]]
-    else:
-        parent[path[-1]] = data.draw(_JSON)
+    damage(doc, data)
     try:
         world = parse_world(doc, source=f"{name}.json")
     except WorldError:
