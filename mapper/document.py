@@ -147,9 +147,12 @@ def _numbers(value: Any, what: str, expected: str, width: int) -> np.ndarray:
     """``value`` as finite floats of shape (N, ``width``), else :class:`DocumentError` naming
     ``what`` and the ``expected`` form."""
     try:
-        a = np.array(value, dtype=float)
+        a = np.array(value)  # JSON numbers only: not "0" (which float() would take), not true
     except (TypeError, ValueError):
         raise DocumentError(f"{what}: expected {expected}, finite numbers") from None
+    if a.dtype.kind not in "iuf":
+        raise DocumentError(f"{what}: expected {expected}, finite numbers")
+    a = a.astype(float)
     if a.ndim == 1 and a.size == 0:  # [] : no points
         a = a.reshape(0, width)
     if a.ndim != 2 or a.shape[1] != width or not np.isfinite(a).all():
