@@ -147,12 +147,13 @@ def _numbers(value: Any, what: str, expected: str, width: int) -> np.ndarray:
     """``value`` as finite floats of shape (N, ``width``), else :class:`DocumentError` naming
     ``what`` and the ``expected`` form."""
     try:
-        a = np.array(value)  # JSON numbers only: not "0" (which float() would take), not true
+        cells = np.array(value, dtype=object)
     except (TypeError, ValueError):
         raise DocumentError(f"{what}: expected {expected}, finite numbers") from None
-    if a.dtype.kind not in "iuf":
+    # JSON numbers only: float() would take "0" and true (numpy too, in a list with floats)
+    if not all(isinstance(v, int | float | np.number) and not isinstance(v, bool) for v in cells.flat):
         raise DocumentError(f"{what}: expected {expected}, finite numbers")
-    a = a.astype(float)
+    a = cells.astype(float)
     if a.ndim == 1 and a.size == 0:  # [] : no points
         a = a.reshape(0, width)
     if a.ndim != 2 or a.shape[1] != width or not np.isfinite(a).all():
