@@ -260,7 +260,7 @@ def test_a_wide_occlusion_whose_end_lies_near_the_crossing_is_not_the_entrance()
 @pytest.mark.xfail(strict=True, reason="known fault: a doorway beside the path is taken as the entrance")
 @pytest.mark.parametrize("y0", [4.98, 5.00])
 def test_a_doorway_beside_the_path_is_not_taken_as_the_way_back(y0):
-    """Known fault, left open (README, "Simulation", "Known faults left open"): a corridor ASR
+    """Known fault, left open (docs/simulation-faults.md, "Known faults left open"): a corridor ASR
     created a metre before the side doorway takes the doorway as its entrance (the nearest exit
     within two passage widths of where it was entered that does not face ahead), so walking
     through the doorway re-enters the ASR before it. Requiring the entrance to run along the exit
@@ -403,7 +403,7 @@ def test_the_mapper_records_the_exit_the_robot_crossed_not_the_entrance_it_guess
 
 @pytest.mark.xfail(strict=True, reason="known fault: a side corridor's mouth seen down a corridor is open")
 def test_a_side_corridors_mouth_seen_down_the_corridor_is_an_exit():
-    """Known fault, left open (README, "Simulation", "Known faults left open"). `lab` seed 43's
+    """Known fault, left open (docs/simulation-faults.md, "Known faults left open"). `lab` seed 43's
     corner (world frame, m): a 1.6 m corridor (x in [8.4, 10]) runs south into one running east
     (y in [7.4, 9]); from 0.45 m off its west wall, looking down it, that wall is seen at a grazing
     angle, its points too far apart to join, and the covers between them (0.6-0.8 m: exits) cross
