@@ -1,11 +1,20 @@
-"""Shared fixtures: real pty pairs, the shared recorded logs, and the mapper's kernels compiled."""
+"""Shared fixtures: real pty pairs, the shared recorded logs, and the mapper's kernels compiled.
+
+Property tests (hypothesis) draw the same examples on every run (profile ``repeatable``), so a
+new draw cannot fail CI at random; ``pytest --hypothesis-profile=explore`` draws new ones (then
+``--hypothesis-seed=N`` repeats a draw)."""
 
 from __future__ import annotations
 
 import pytest
+from hypothesis import settings
 
 from serialport.ptys import open_pty
 from service.datasets import data_dir
+
+settings.register_profile("repeatable", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile("repeatable")
 
 
 @pytest.fixture

@@ -184,7 +184,7 @@ def _damaged_logs(draw):
     return "\n".join(lines) + "\n"
 
 
-@settings(max_examples=150, deadline=None, derandomize=True,
+@settings(max_examples=150, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(text=_damaged_logs())
 def test_damaged_log_lines_never_escape_the_reader_or_the_mapper(tmp_path, text):

@@ -129,7 +129,7 @@ def test_a_one_way_link_without_a_known_exit_round_trips():
 _FUZZ_BASE = document_of(_loop_map())
 
 
-@settings(max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=st.data())
 def test_any_damage_to_a_document_is_a_document_error_or_a_map_that_draws(data):
     """What ``asrmap render`` and ``asrmap run`` (restoring a store) read from a file: one place

@@ -168,7 +168,7 @@ def _chunked(data: bytes, cuts: list[int]):
     return [data[a:b] for a, b in itertools.pairwise(edges)]
 
 
-@settings(max_examples=200, deadline=None, derandomize=True)
+@settings(max_examples=200, deadline=None)
 @given(garbage=_garbage, packets=_packets, cuts=st.lists(st.integers(0, 10_000), max_size=10))
 def test_reader_after_random_garbage_delivers_every_following_packet(garbage, packets, cuts):
     reader = PacketReader()
@@ -178,7 +178,7 @@ def test_reader_after_random_garbage_delivers_every_following_packet(garbage, pa
     assert [p.to_bytes() for p in got[len(got) - len(packets):]] == packets
 
 
-@settings(max_examples=200, deadline=None, derandomize=True)
+@settings(max_examples=200, deadline=None)
 @given(damaged=_damaged, packets=_packets,
        flips=st.lists(st.tuples(st.integers(0, 10_000), st.integers(0, 7)), min_size=1, max_size=5))
 def test_reader_after_bit_flips_delivers_every_following_intact_packet(damaged, packets, flips):
@@ -190,7 +190,7 @@ def test_reader_after_bit_flips_delivers_every_following_intact_packet(damaged, 
     assert [p.to_bytes() for p in got[len(got) - len(packets):]] == packets
 
 
-@settings(max_examples=200, deadline=None, derandomize=True)
+@settings(max_examples=200, deadline=None)
 @given(damaged=_damaged, packets=_packets, cut=st.integers(1, 10_000))
 def test_reader_after_a_truncated_packet_delivers_every_following_packet(damaged, packets, cut):
     stream = b"".join(damaged)

@@ -100,7 +100,7 @@ def test_not_json_names_line_and_column(tmp_path):
 
 
 
-@settings(max_examples=200, deadline=None, derandomize=True)
+@settings(max_examples=200, deadline=None)
 @given(name=st.sampled_from(["lab", "office", "aliasing"]), data=st.data())
 def test_any_damage_to_a_world_file_is_a_world_error_or_a_world_the_laser_sees(name, data):
     """What ``--world FILE`` reads: one place of a built-in world replaced by any JSON value, or a
