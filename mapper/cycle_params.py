@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from mapper.limits import scaled_range
+from mapper.limits import field_range
 
 
 @dataclass(frozen=True, slots=True)
@@ -326,7 +326,5 @@ def limits(name: str) -> tuple[float, float]:
     both ends of every range with a replay of Intel raw (2.5 s at the defaults): each ran, the
     slowest in 22-26 s (``loop_constraint_full`` 150, ``sample_spacing`` 0.005: still 42x real
     time)."""
-    if name in OWN_LIMITS:
-        return OWN_LIMITS[name]
-    return scaled_range(getattr(CycleParams(), name), zero=name not in POSITIVE_FIELDS,
-                        angle=name in ANGLE_FIELDS)
+    return field_range(CycleParams(), name, own=OWN_LIMITS, angles=ANGLE_FIELDS,
+                       zero=name not in POSITIVE_FIELDS)

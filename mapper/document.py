@@ -193,7 +193,7 @@ def from_document(doc: dict[str, Any]) -> MapDocument:
     if not isinstance(doc, dict) or doc.get("schema") != SCHEMA:
         got = doc.get("schema") if isinstance(doc, dict) else type(doc).__name__
         raise DocumentError(f"not a map document: schema {got!r}, expected {SCHEMA!r}")
-    asrs = [_record(f"asrs[{i}]", asr_from_dict, a) for i, a in enumerate(_list(doc, "asrs"))]
+    asrs = _records(doc, "asrs", lambda d, _where: asr_from_dict(d))  # an ASR names itself by id
     ids = {a.id for a in asrs}
     if len(ids) != len(asrs):
         raise DocumentError("asrs: two ASRs with one id")
@@ -201,11 +201,11 @@ def from_document(doc: dict[str, Any]) -> MapDocument:
         if a.duplicate_of is not None and a.duplicate_of not in ids:
             raise DocumentError(f"asr {a.id}: duplicate_of {a.duplicate_of} names an ASR the document "
                                 "does not hold")
-    links = [_record(f"links[{i}]", _link_from_dict, ln) for i, ln in enumerate(_list(doc, "links"))]
+    links = _records(doc, "links", _link_from_dict)
     for ln in links:
         if ln.src not in ids or ln.dst not in ids:
             raise DocumentError(f"link {ln.src} -> {ln.dst}: names an ASR the document does not hold")
-    cycles = [_record(f"cycles[{i}]", _cycle_from_dict, c) for i, c in enumerate(_list(doc, "cycles"))]
+    cycles = _records(doc, "cycles", _cycle_from_dict)
     return MapDocument(str(doc.get("robot", "pioneer")), asrs, links, cycles)
 
 
@@ -217,13 +217,19 @@ def _list(doc: dict[str, Any], key: str, where: str = "") -> list:
     return v
 
 
+def _records(doc: dict[str, Any], key: str, parse) -> list:
+    """``parse(d, where)`` of each record of the list ``doc[key]``, ``where`` naming it
+    (``links[3]``)."""
+    return [_record(f"{key}[{i}]", parse, d) for i, d in enumerate(_list(doc, key))]
+
+
 def _record(where: str, parse, d: Any):
-    """``parse(d)``, with any way a record can be malformed (a missing field, a string where a number
-    belongs) reported as one :class:`DocumentError` naming the record."""
+    """``parse(d, where)``, with any way a record can be malformed (a missing field, a string where a
+    number belongs) reported as one :class:`DocumentError` naming the record."""
     if not isinstance(d, dict):
         raise DocumentError(f"{where}: expected an object, found {type(d).__name__}")
     try:
-        return parse(d) if parse is asr_from_dict else parse(d, where)  # an ASR names itself by id
+        return parse(d, where)
     except DocumentError:
         raise
     except KeyError as exc:

@@ -5,6 +5,8 @@ and some exhaust the robot's memory or divide by zero in the mapper thread."""
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Set
+from typing import Any
 
 #: A configured number lies within this factor of its default, either way.
 LIMIT_FACTOR = 1000.0
@@ -22,3 +24,12 @@ def scaled_range(default: float, *, zero: bool = False, angle: bool = False) -> 
     if angle:
         hi = min(hi, math.pi)
     return lo, hi
+
+
+def field_range(defaults: Any, name: str, *, own: Mapping[str, tuple[float, float]],
+                angles: Set[str], zero: bool = False) -> tuple[float, float]:
+    """The range of field ``name`` of the parameters ``defaults``: its own when ``own`` names one,
+    else :func:`scaled_range` of its default (``angle`` when ``angles`` holds it)."""
+    if name in own:
+        return own[name]
+    return scaled_range(getattr(defaults, name), zero=zero, angle=name in angles)

@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, field
 
 from mapper.cycle_params import CycleParams
-from mapper.limits import scaled_range
+from mapper.limits import field_range
 
 
 @dataclass(frozen=True, slots=True)
@@ -173,7 +173,6 @@ class MapperParams:
     cycles: CycleParams = field(default_factory=CycleParams)
 
 
-
 #: Fields in radians: a configured value of them is at most pi (a half turn).
 ANGLE_FIELDS = frozenset({"breakpoint_lambda", "merge_angle", "view_turn", "angle_bin", "max_rotation",
                           "match_sigma_theta", "odom_sigma_floor_theta"})
@@ -190,6 +189,4 @@ def limits(name: str) -> tuple[float, float]:
     :data:`ANGLE_FIELDS`, at most pi). Probed at both ends of every range with 800 Intel raw scans:
     the mapper runs, if slowly at the extremes (12,000 refinement iterations: 12 ms a scan); beyond
     them a 1e-9 m translation bin or a laser 1e9 m away raised MemoryError."""
-    if name in OWN_LIMITS:
-        return OWN_LIMITS[name]
-    return scaled_range(getattr(MapperParams(), name), angle=name in ANGLE_FIELDS)
+    return field_range(MapperParams(), name, own=OWN_LIMITS, angles=ANGLE_FIELDS)

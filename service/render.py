@@ -97,9 +97,9 @@ def _spread(xy: dict[int, tuple[float, float]], gap: float = NODE_GAP) -> dict[i
     return placed
 
 
-def _cycle_links(doc: dict) -> set[tuple[int, int]]:
-    """Links (from, to) that closed a cycle: P -> M where a duplicate of M has a one-way link to P."""
-    dup = {a["id"]: a["duplicate_of"] for a in doc.get("asrs", []) if a.get("duplicate_of") is not None}
+def _cycle_links(doc: dict, dup: dict[int, int]) -> set[tuple[int, int]]:
+    """Links (from, to) that closed a cycle: P -> M where a duplicate of M (``dup``: duplicate ->
+    original) has a one-way link to P."""
     out = set()
     for ln in doc.get("links", []):
         if ln.get("oneway", False) and ln["from"] in dup:
@@ -131,7 +131,7 @@ def render_svg(doc: dict, title: str | None = None, robot: dict | None = None) -
     pts = np.concatenate([g[0] for g in geo.values()]) if geo else np.zeros((0, 2))
     left, right = _View(pts, 0.0), _View(pts, PANEL)
     dups = {a["id"]: a["duplicate_of"] for a in doc.get("asrs", []) if a.get("duplicate_of") is not None}
-    cycle_links = _cycle_links(doc)
+    cycle_links = _cycle_links(doc, dups)
     w, h = 2 * PANEL, PANEL + 40
     o = [
         '<?xml version="1.0" encoding="UTF-8"?>',

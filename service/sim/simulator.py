@@ -260,11 +260,6 @@ class Summary:
     wedged: tuple[float, float] | None = None
 
     @property
-    def false_pairs(self) -> tuple[tuple[int, int], ...]:
-        """(ASR, the ASR it matched) of each false closure."""
-        return tuple((i, j) for i, j, _, _ in self.false_depths)
-
-    @property
     def realtime_factor(self) -> float:
         return self.sim_time / self.wall_time if self.wall_time > 0 else math.inf
 
