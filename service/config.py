@@ -22,6 +22,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mapper.cycle_params import CycleParams
+from mapper.cycle_params import limits as cycle_limits
+from mapper.params import MapperParams
+from mapper.params import limits as mapper_limits
+
 
 class ConfigError(ValueError):
     """A configuration file that cannot be used; ``str()`` is one line per problem."""
@@ -254,17 +259,12 @@ class Config:
 
     def mapper_params(self):
         """``MapperParams`` with the ``[mapper]`` overrides applied."""
-        cls = _params_class()
-        if cls is None:
-            raise ImportError("the mapper has no MapperParams (mapper/params.py)")
         overrides = dict(self.mapper)
         if "cycles" in overrides:
-            from mapper.cycle_params import CycleParams
-
             cycles = dict(overrides["cycles"])
             base = CycleParams.paper() if cycles.pop("paper", False) else CycleParams()
             overrides["cycles"] = base.replace(**cycles)
-        return cls(**overrides)
+        return MapperParams(**overrides)
 
 
 _SECTION_TYPES = {
@@ -273,39 +273,24 @@ _SECTION_TYPES = {
 }
 
 
-def _params_class():
-    try:
-        from mapper import MapperParams
-    except ImportError:
-        try:
-            from mapper.params import MapperParams
-        except ImportError:
-            return None
-    return MapperParams
-
-
-def _mapper_fields() -> dict[str, Any] | None:
-    """MapperParams field defaults by name, or None while the mapper has no parameters class."""
-    cls = _params_class()
-    if cls is None:
-        return None
+def _defaults(cls: type) -> dict[str, Any]:
+    """A parameters dataclass's field defaults by name."""
     return {f.name: getattr(cls(), f.name) for f in dataclasses.fields(cls)}
 
 
-def _check_fields(prefix: str, table: dict, known: dict[str, Any] | None, what: str, problems: list[str],
+def _check_fields(prefix: str, table: dict, known: dict[str, Any], what: str, problems: list[str],
                   limits: Callable[[str], tuple[float, float]] | None = None) -> list[tuple[str, Any]]:
     """Overrides of a parameters dataclass (``known``: its defaults by field name), each checked
     against its default's type; numbers must lie within ``limits(name)`` (closed)."""
     out = []
     for name, v in table.items():
-        if known is not None and name not in known:
+        if name not in known:
             problems.append(f"{prefix}.{name}: expected a {what} field ({', '.join(sorted(known))}); "
                             f"found an unknown key")
             continue
-        default = known.get(name) if known else None
-        if isinstance(default, bool) or default is None:
-            ok = isinstance(v, bool | int | float | str) if default is None else isinstance(v, bool)
-            expected = "a number, string or boolean" if default is None else "true or false"
+        default = known[name]
+        if isinstance(default, bool):
+            ok, expected = isinstance(v, bool), "true or false"
         elif isinstance(default, int | float):
             ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
             if isinstance(default, int) and not isinstance(v, int):
@@ -328,24 +313,18 @@ def _check_fields(prefix: str, table: dict, known: dict[str, Any] | None, what: 
 
 
 def _check_mapper(table: dict, problems: list[str]) -> tuple[tuple[str, Any], ...]:
-    known = _mapper_fields()
     cycles = table.get("cycles")
-    rest = {k: v for k, v in table.items() if k != "cycles" or known is None}
-    from mapper.params import limits
-
-    out = _check_fields("mapper", rest, known, "MapperParams", problems, limits=limits)
-    if cycles is not None and known is not None:
+    rest = {k: v for k, v in table.items() if k != "cycles"}
+    out = _check_fields("mapper", rest, _defaults(MapperParams), "MapperParams", problems,
+                        limits=mapper_limits)
+    if cycles is not None:
         if not isinstance(cycles, dict):
             problems.append(f"mapper.cycles: expected a table [mapper.cycles] of CycleParams fields; "
                             f"found {_show(cycles)}")
         else:
-            from mapper.cycle_params import CycleParams
-
-            fields = {f.name: getattr(CycleParams(), f.name) for f in dataclasses.fields(CycleParams)}
+            fields = _defaults(CycleParams)
             fields["paper"] = False  # start from CycleParams.paper(): the paper's method alone
             # 0 is meaningful for most (a margin or a search radius of 0 is the paper's test)
-            from mapper.cycle_params import limits as cycle_limits
-
             out.append(("cycles", tuple(_check_fields("mapper.cycles", cycles, fields, "CycleParams",
                                                       problems, limits=cycle_limits))))
     return tuple(out)
