@@ -19,10 +19,13 @@ import zenoh
 
 from mapper.events import AsrCreated, AsrUpdated
 from service.bench.service import free_port
+from service.buffers import DropOldest, OdometryBuffer
 from service.bus import client_config
 from service.config import Config, StoreConfig, WatchdogConfig, ZenohConfig
+from service.device_link import Link
+from service.mapper_worker import MapperWorker
 from service.notify import Notifier
-from service.pipeline import DropOldest, Link, MapperWorker, OdometryBuffer, Service
+from service.pipeline import Service
 from service.store import MapStore
 
 # --- alignment -----------------------------------------------------------------------------------------
@@ -336,7 +339,7 @@ def test_a_stored_map_the_mapper_does_not_continue_is_archived_not_overwritten(t
 
 def test_a_restart_resumes_at_the_stored_pose_when_it_is_in_the_last_asr(monkeypatch):
     from mapper.mapper import Mapper
-    from service.pipeline import make_mapper
+    from service.mapper_worker import make_mapper
 
     calls = []
     monkeypatch.setattr(Mapper, "from_document",
@@ -362,7 +365,7 @@ class _Explorer:
 
 
 def _exploring(explorer) -> tuple:
-    from service.pipeline import Exploration
+    from service.mapper_worker import Exploration
 
     sent = []
     ex = Exploration(lambda v, w: sent.append((v, w)), lambda: False, period=0.0)
@@ -392,7 +395,7 @@ def test_a_silent_exploration_stops_the_robot_once():
 
 
 def test_exploration_ends_when_the_pioneer_cannot_be_driven():
-    from service.pipeline import Exploration
+    from service.mapper_worker import Exploration
 
     def refuse(v, w):
         raise ConnectionError("the Pioneer is not connected")
