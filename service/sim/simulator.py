@@ -368,8 +368,9 @@ def map_document(mapper: Any, robot_name: str = "pioneer") -> dict:
 class DirectSim:
     """The robot, the mapper and the explorer stepped in turn on a simulated clock (see the module
     docstring). ``progress(sim_time, explorer_status, mapper)`` is called about once a simulated second.
-    After :meth:`run`: ``document`` (the map, ``asrmap/map/1``) and ``final_pose`` (``asr`` and
-    ``global``: the robot's last pose, m, m, rad in the global frame; None before the first ASR)."""
+    After :meth:`run`: ``document`` (the map, ``asrmap/map/1``) and ``final_pose`` (the robot's last
+    pose as the service publishes it, ``asrmap/pose/1``: ``asr``, ``global`` in m, m, rad in the
+    global frame, ...; None before the first ASR)."""
 
     def __init__(self, world: World, params: SimParams | None = None, mapper: Any = None,
                  progress: Callable[[float, str, Any], None] | None = None) -> None:
@@ -433,7 +434,10 @@ class DirectSim:
         s.scans = self.scans
         self.document = doc
         m = self.mapper.mapper
-        self.final_pose = None if m.current is None else {"asr": m.current, "global": list(m.global_pose)}
+        if m.current is not None:
+            from service.mapper_worker import pose_report  # the service's body; it brings in Zenoh
+
+            self.final_pose = pose_report(m, self.t, self.robot.drive.odometry_pose)
         return s
 
 
